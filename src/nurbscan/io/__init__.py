@@ -1,6 +1,14 @@
 """File formats and safe writing: images, JSON, atomic output."""
 
-from .atomic import atomic_path, write_bytes, write_json, write_text
+from .atomic import atomic_path, read_json, write_bytes, write_json, write_text
 from .images import read_image, write_image
 
-__all__ = ["atomic_path", "read_image", "write_bytes", "write_image", "write_json", "write_text"]
+__all__ = [
+    "atomic_path",
+    "read_image",
+    "read_json",
+    "write_bytes",
+    "write_image",
+    "write_json",
+    "write_text",
+]
