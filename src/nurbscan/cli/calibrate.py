@@ -5,4 +5,4 @@ from ._todo import register_todo
 
 def register(sub) -> None:
     """Add the ``calibrate`` sub-command."""
-    register_todo(sub, "calibrate", "Calibrate camera, projector and turntable from target images", 6)
+    register_todo(sub, "calibrate", "Calibrate camera, projector, turntable from target images", 6)
