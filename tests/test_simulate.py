@@ -1,0 +1,322 @@
+"""Tests of the synthetic scanner's image formation, rig, calibration target and scan folder.
+
+Most checks run on the default rig with its camera scaled down (same field of view, fewer
+pixels) to stay fast; each compares the renderer's output with an independent computation
+(the camera and projector models, the exact surface, ray casts, OpenCV's corner finder).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from nurbscan.errors import NurbscanError
+from nurbscan.io import read_image, write_image
+from nurbscan.pattern import Pattern, load_pattern
+from nurbscan.simulate.render import RenderSettings, render_view
+from nurbscan.simulate.rig import axis_angle, default_rig, scale_camera
+from nurbscan.simulate.scan import default_pattern
+from nurbscan.simulate.scenes import make_scene
+from nurbscan.simulate.target import BoardScene, Chessboard, free_board_poses
+
+ANGLE = 0.7  # table angle of the test views, rad
+
+
+@pytest.fixture(scope="module")
+def teapot():
+    return make_scene("teapot")
+
+
+@pytest.fixture(scope="module")
+def rig_small():
+    return scale_camera(default_rig(), 768, 576)
+
+
+@pytest.fixture(scope="module")
+def view(teapot, rig_small):
+    """The teapot at 768 x 576 with the default (noisy, blurred) settings."""
+    pat = default_pattern(rig_small.projector)
+    return render_view(teapot, rig_small, pat, ANGLE, RenderSettings(), seed=1)
+
+
+# ---------------------------------------------------------------------------- rig
+def test_default_rig_geometry(teapot):
+    rig = default_rig()
+    cam, proj = rig.camera, rig.projector
+    assert (cam.width, cam.height) == (3072, 2304)
+    assert (proj.width, proj.height) == (1920, 1080)
+    assert 15.0 <= math.degrees(axis_angle(rig)) <= 25.0
+    np.testing.assert_allclose(cam.R, np.eye(3))
+    # working distance: the table centre and the projector at 500-700 mm from the object
+    centre = np.asarray(rig.turntable.to_rig(np.array([[0.0, 0.0, 58.5]]), 0.0))[0]
+    assert 500 <= np.linalg.norm(centre) <= 700
+    assert 500 <= np.linalg.norm(centre - np.asarray(proj.center)) <= 700
+    # the teapot is inside both images at every table angle and fills most of the width
+    pts = teapot.sample_surface(4000, seed=0)
+    pts = pts[0] if isinstance(pts, tuple) else pts
+    widths = []
+    for a in np.linspace(0, 2 * np.pi, 8, endpoint=False):
+        x = rig.turntable.to_rig(pts, a)
+        pc, pp = cam.project(x), proj.project(x)
+        for px, dev in ((pc, cam), (pp, proj)):
+            assert np.all(np.isfinite(px))
+            assert px.min() > 0 and px[:, 0].max() < dev.width and px[:, 1].max() < dev.height
+        widths.append(np.ptp(pc[:, 0]) / cam.width)
+    assert max(widths) > 0.6
+    # radial distortion moves the image corner by a few px (Tsai: Xu = Xd (1 + k1 r^2))
+    for dev in (cam, proj):
+        xd = (0 - dev.cx) * dev.dx / dev.sx
+        yd = (0 - dev.cy) * dev.dy
+        shift = math.hypot(xd, yd) * dev.k1 * (xd**2 + yd**2) / dev.dx
+        assert 1.0 < shift < 10.0
+
+
+def test_rig_json_round_trip(tmp_path):
+    from nurbscan.camera import load_rig
+
+    rig = default_rig()
+    rig.save(tmp_path / "rig.json")
+    back = load_rig(tmp_path / "rig.json")
+    x = np.array([[10.0, -20.0, 600.0], [-50.0, 30.0, 550.0]])
+    np.testing.assert_allclose(back.projector.project(x), rig.projector.project(x), atol=1e-9)
+    np.testing.assert_allclose(back.turntable.to_rig(x, 0.3), rig.turntable.to_rig(x, 0.3),
+                               atol=1e-9)
+
+
+# ---------------------------------------------------------------------------- truth
+def test_truth_is_exact(view, teapot, rig_small):
+    t = view.truth
+    ys, xs = np.nonzero((t["surface_id"] >= 0) & t["lit"])
+    assert ys.size > 20000
+    rng = np.random.default_rng(0)
+    pick = rng.choice(ys.size, 1000, replace=False)
+    ys, xs = ys[pick], xs[pick]
+    x_rig = t["point_rig"][ys, xs]
+    x_obj = t["point_obj"][ys, xs]
+    proj = np.stack([t["proj_x"][ys, xs], t["proj_y"][ys, xs]], axis=1)
+    # projector coordinate = projector model of the stored point, within 1e-6 px
+    assert np.abs(proj - rig_small.projector.project(x_rig)).max() < 1e-6
+    # the point is where the pixel centre's ray meets the surface
+    back = rig_small.camera.project(x_rig)
+    assert np.abs(back - np.stack([xs, ys], axis=1)).max() < 1e-6
+    # object and rig frames agree; depth is the camera z
+    assert np.abs(rig_small.turntable.to_rig(x_obj, ANGLE) - x_rig).max() < 1e-9
+    assert np.abs(t["depth"][ys, xs] - x_rig[:, 2]).max() < 1e-9
+    # on the exact surface within 1 micrometre
+    _, dist, _ = teapot.closest_point(x_obj)
+    assert dist.max() < 1e-3
+
+
+def test_shadows_exist_and_are_dark(view, teapot, rig_small):
+    t = view.truth
+    obj = t["surface_id"] >= 0
+    shadow = obj & ~t["lit"]
+    lit = obj & t["lit"]
+    # interior of the shadow (all 8 neighbours in shadow too), away from blur
+    k = np.ones((5, 5), np.uint8)
+    core = cv2.erode(shadow.astype(np.uint8), k).astype(bool)
+    assert core.sum() > 500
+    g = view.grid.astype(float).max(axis=2)
+    w = view.white.astype(float).max(axis=2)
+    lit_level = np.percentile(w[cv2.erode(lit.astype(np.uint8), k).astype(bool)], 50)
+    assert np.median(g[core]) < 0.3 * lit_level
+    assert np.median(w[core]) < 0.3 * lit_level
+    # independent oracle: rays from the projector to shadow points hit the surface first,
+    # rays to lit points do not
+    m_pts = t["point_obj"]
+    po = rig_small.turntable.from_rig(np.asarray(rig_small.projector.center)[None], ANGLE)[0]
+    for mask, blocked in ((core, True), (lit, False)):
+        ys, xs = np.nonzero(mask)
+        sel = np.random.default_rng(1).choice(ys.size, 200, replace=False)
+        p = m_pts[ys[sel], xs[sel]]
+        d = p - po
+        dist = np.linalg.norm(d, axis=1)
+        hit = teapot.intersect(np.broadcast_to(po, d.shape), d / dist[:, None])
+        first = np.where(hit["hit"], hit["t"], np.inf)
+        occluded = first < dist - 1e-3
+        # shadow points are occluded or face away from the projector
+        if blocked:
+            n_obj = teapot.closest_point(p)[0]  # on the surface (sanity)
+            assert np.abs(n_obj - p).max() < 1e-3
+            assert occluded.mean() > 0.5
+        else:
+            assert not occluded.any()
+
+
+def _edge_positions(img, white, truth, pattern, mix):
+    """Sub-pixel rising edges of vertical bands along rows: (image estimate, truth), px.
+
+    The band's light fraction per pixel is grid / white in the projector primaries (the
+    camera RGB unmixed with the mixing matrix); the edge is located by the area (first
+    moment) fit across it, x_e = x1 + 0.5 - sum f over the pixels x0..x1 spanning it.
+    """
+    inv = np.linalg.inv(mix)
+    g = img @ inv.T
+    w = white @ inv.T
+    u, v = truth["proj_x"], truth["proj_y"]
+    ok_rows = truth["lit"] & (truth["surface_id"] >= 0)
+    edges = pattern.vertical_edges[:, 0]
+    codes = pattern.band_codes("vertical")
+    rgb = pattern.rgb[codes] > 0
+    # no horizontal band within the pixel's footprint (plus 1 px for the defocus)
+    foot = np.zeros_like(v)
+    foot[:-1, :-1] = 0.5 * (np.abs(np.diff(v, axis=1))[:-1] + np.abs(np.diff(v, axis=0))[:, :-1])
+    with np.errstate(invalid="ignore"):
+        hband = pattern.stripe_field(v - foot - 1.0, "horizontal") < 0
+        hband &= pattern.stripe_field(v + foot + 1.0, "horizontal") < 0
+        hband &= pattern.stripe_field(v, "horizontal") < 0
+    est, tru = [], []
+    H, W = u.shape
+    for y in range(2, H - 2, 3):
+        row_u = u[y]
+        for x in range(3, W - 4):
+            a, b = row_u[x], row_u[x + 1]
+            if not (np.isfinite(a) and np.isfinite(b)) or b <= a:
+                continue
+            i = np.searchsorted(edges, a)
+            if i >= len(edges) or edges[i] > b:
+                continue
+            win = slice(x - 1, x + 3)
+            if not (ok_rows[y - 1:y + 2, x - 2:x + 4].all() and hband[y, win].all()):
+                continue
+            # half the pixel footprint along u; the window must start dark and end in the band
+            half = 0.5 * (abs(u[y, x + 1] - u[y, x]) + abs(u[y + 1, x] - u[y, x])) + 0.25
+            if not (row_u[x - 1] + half < edges[i] < row_u[x + 2] - half
+                    and row_u[x + 2] + half < pattern.vertical_edges[i, 1]):
+                continue
+            c = int(np.argmax(rgb[i]))  # a channel lit by this band
+            f = g[y, win, c] / w[y, win, c]
+            est.append(x + 2 + 0.5 - f.sum())
+            tru.append(x + (edges[i] - a) / (b - a))
+    return np.array(est), np.array(tru)
+
+
+def test_band_edges_match_truth(teapot, rig_small, tmp_path):
+    pat = Pattern.create(width=1920, height=1080, pitch=32, band=12)
+    s = RenderSettings().ideal().replace(ambient=0.0, gamma=1.0, bit_depth=16, exposure=0.5)
+    r = render_view(teapot, rig_small, pat, ANGLE, s, seed=0)
+    # through a 16-bit file and back
+    write_image(tmp_path / "g.png", r.grid)
+    write_image(tmp_path / "w.png", r.white)
+    g16 = read_image(tmp_path / "g.png", as_float=False)
+    assert g16.dtype == np.uint16 and np.array_equal(g16, r.grid)
+    g = read_image(tmp_path / "g.png").astype(float)
+    w = read_image(tmp_path / "w.png").astype(float)
+    est, tru = _edge_positions(g, w, r.truth, pat, np.asarray(s.mixing))
+    assert est.size > 200
+    err = np.abs(est - tru)
+    assert np.median(err) < 0.005
+    assert np.percentile(err, 99) < 0.05
+
+
+def test_same_seed_same_images(teapot):
+    rig = scale_camera(default_rig(), 192, 144)
+    pat = default_pattern(rig.projector)
+    a = render_view(teapot, rig, pat, 0.2, RenderSettings(), seed=5, stream=2)
+    b = render_view(teapot, rig, pat, 0.2, RenderSettings(), seed=5, stream=2, workers=1)
+    c = render_view(teapot, rig, pat, 0.2, RenderSettings(), seed=6, stream=2)
+    assert np.array_equal(a.grid, b.grid) and np.array_equal(a.white, b.white)
+    assert not np.array_equal(a.grid, c.grid)
+    # noise is there, and its level follows the model (shot + read noise in electrons)
+    n = RenderSettings().replace(noise=0.0)
+    d = render_view(teapot, rig, pat, 0.2, n, seed=5, stream=2)
+    diff = a.white.astype(float) - d.white.astype(float)
+    assert 0.3 < diff.std() < 6.0
+
+
+# ---------------------------------------------------------------------------- target
+def test_chessboard_corners_match_pose(rig_small):
+    board = Chessboard()
+    aim = np.asarray(rig_small.turntable.to_rig(np.zeros((1, 3)), 0.0))[0] * [0, 0, 1]
+    r_b, t_b = free_board_poses(board, aim)[3]
+    m = np.asarray(rig_small.turntable.to_rig(np.vstack([np.zeros(3), np.eye(3)]), 0.0))
+    mm, tt = (m[1:] - m[0]).T, m[0]
+    scene = BoardScene(board, mm.T @ r_b, mm.T @ (t_b - tt))
+    pat = default_pattern(rig_small.projector)
+    s = RenderSettings(table=False, noise=0.0)
+    r = render_view(scene, rig_small, pat, 0.0, s, albedo=scene.albedo)
+    grey = cv2.cvtColor(r.white, cv2.COLOR_RGB2GRAY)
+    found, corners = cv2.findChessboardCorners(grey, (board.cols, board.rows))
+    assert found
+    corners = cv2.cornerSubPix(grey, corners, (5, 5), (-1, -1),
+                               (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4))
+    truth = rig_small.camera.project(board.corners() @ r_b.T + t_b)
+    found_xy = corners.reshape(-1, 2)
+    if np.linalg.norm(found_xy[0] - truth[0]) > np.linalg.norm(found_xy[0] - truth[-1]):
+        found_xy = found_xy[::-1]  # OpenCV may start from the opposite corner
+    err = np.linalg.norm(found_xy - truth, axis=1)
+    assert err.max() < 0.3
+
+
+def test_board_albedo_layout():
+    b = Chessboard()
+    s = b.square
+    pts = np.array([[0.5 * s, 0.5 * s], [1.5 * s, 0.5 * s], [-0.5 * s, -0.5 * s],
+                    [-1.5 * s, 0.5 * s], [b.cols * s - 0.5 * s, b.rows * s - 0.5 * s]])
+    np.testing.assert_allclose(b.albedo_at(pts), [b.black, b.white, b.black, b.white,
+                                                   b.black if (b.cols + b.rows) % 2 == 0
+                                                   else b.white])
+
+
+# ---------------------------------------------------------------------------- settings
+def test_settings_round_trip_and_errors():
+    s = RenderSettings(gloss=0.1, bit_depth=16)
+    d = json.loads(json.dumps(s.to_dict()))
+    assert RenderSettings.from_dict(d) == s
+    with pytest.raises(NurbscanError, match="bit_depth"):
+        RenderSettings(bit_depth=12)
+    with pytest.raises(NurbscanError, match="camera_blur"):
+        RenderSettings(camera_blur=-1.0)
+    with pytest.raises(NurbscanError, match="unknown keys"):
+        RenderSettings.from_dict({**d, "colour": 3})
+    assert s.with_noise_scale(0.5).noise == pytest.approx(0.5)
+
+
+# ---------------------------------------------------------------------------- command line
+def test_cli_writes_scan_folder(tmp_path):
+    from nurbscan.cli import main
+
+    out = tmp_path / "scan"
+    rig_path = tmp_path / "rig.json"
+    scale_camera(default_rig(), 96, 72).save(rig_path)
+    rc = main(["simulate", "sphere", "-o", str(out), "--views", "2", "--rig", str(rig_path),
+               "--bit-depth", "16", "--seed", "3"])
+    assert rc == 0
+    doc = json.loads((out / "scan.json").read_text())
+    assert doc["type"] == "nurbscan.scan" and doc["image_size"] == [96, 72]
+    assert [v["table_angle"] for v in doc["views"]] == pytest.approx([0.0, math.pi])
+    pat = load_pattern(out / doc["pattern"]["sidecar"])
+    assert (pat.width, pat.height) == (1920, 1080)
+    for v in doc["views"]:
+        for key in ("grid", "white"):
+            img = read_image(out / v[key], as_float=False)
+            assert img.shape == (72, 96, 3) and img.dtype == np.uint16
+    cal = doc["calibration"]
+    assert cal["target"]["inner_corners"] == [9, 7] and cal["target"]["square_mm"] == 20.0
+    kinds = [p["kind"] for p in cal["poses"]]
+    assert kinds.count("free") >= 10
+    assert len({p["table_angle"] for p in cal["poses"] if p["kind"] == "turntable"}) >= 3
+    for p in cal["poses"]:
+        assert (out / p["grid"]).is_file() and (out / p["white"]).is_file()
+    truth = np.load(out / "truth" / "view_01.npz")
+    for key in ("depth", "point_rig", "point_obj", "surface_id", "proj_x", "proj_y", "lit"):
+        assert truth[key].shape[:2] == (72, 96)
+    assert truth["point_rig"].dtype == np.float64
+    assert (out / "truth" / "rig.json").is_file() and (out / "truth" / "scene.json").is_file()
+    poses = json.loads((out / "truth" / "calibration.json").read_text())["poses"]
+    assert len(poses) == len(cal["poses"])
+    assert not list(out.rglob(".*"))  # no temporary files left
+    # same seed, same images (through the files)
+    out2 = tmp_path / "scan2"
+    assert main(["simulate", "sphere", "-o", str(out2), "--views", "1", "--width", "96",
+                 "--height", "72", "--bit-depth", "16", "--seed", "3",
+                 "--no-calibration"]) == 0
+    for key in ("grid", "white"):
+        a = read_image(out / doc["views"][0][key], as_float=False)
+        b = read_image(out2 / doc["views"][0][key], as_float=False)
+        assert np.array_equal(a, b)
+    assert main(["simulate", "sphere", "-o", str(out2), "--noise", "-1"]) == 2
