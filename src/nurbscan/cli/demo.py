@@ -54,22 +54,35 @@ def run(args: argparse.Namespace) -> int:
     if status:
         return status
 
+    scan = out / "scan"
+    calib = out / "calib.json"
+    model = out / "model"
+    plan = [
+        ("nurbscan.simulate.scan", "simulate (issue 3)", "simulate the teapot scan",
+         ["simulate", "teapot", "-o", str(scan), "--views", str(args.views),
+          "--seed", str(args.seed)]),
+        ("nurbscan.calibrate", "calibrate (issue 6)", "calibrate from the calibration images",
+         ["calibrate", str(scan / "calibration"), "--pattern", str(scan / "pattern.json"),
+          "-o", str(calib)]),
+        ("nurbscan.reconstruct", "reconstruct (issue 7)", "reconstruct every view",
+         ["reconstruct", str(scan), "--calib", str(calib), "-o", str(model)]),
+        ("nurbscan.evaluate", "evaluate (issue 7)", "evaluate against the truth (Table I)",
+         ["evaluate", str(model), "--truth", str(scan / "truth"),
+          "-o", str(out / "evaluation.json")]),
+        ("nurbscan.export", "export (issue 8)", "export the model for VR (glb)",
+         ["export", str(model), "--format", "glb", "-o", str(out / "teapot.glb")]),
+        ("nurbscan.report", "report (issue 8)", "write the scan report",
+         ["report", str(model), "-o", str(out / "report.html")]),
+    ]
     missing = []
-    if _available("nurbscan.simulate.scan"):
-        step("simulate the teapot scan")
-        status = cli_main(["simulate", "teapot", "-o", str(out / "scan"),
-                           "--views", str(args.views), "--seed", str(args.seed)])
+    for module, stage, title, argv in plan:
+        if missing or not _available(module):
+            missing.append(stage)
+            continue
+        step(title)
+        status = cli_main(argv)
         if status:
             return status
-    else:
-        missing.append("simulate (issue 3)")
-
-    for module, stage in (("nurbscan.detect", "detect (issue 5)"),
-                          ("nurbscan.calibrate", "calibrate (issue 6)"),
-                          ("nurbscan.reconstruct", "reconstruct (issue 7)"),
-                          ("nurbscan.evaluate", "evaluate (issue 7)")):
-        if not _available(module):
-            missing.append(stage)
     step("done")
     if missing:
         print("nurbscan demo: stages not built yet: " + ", ".join(missing), file=sys.stderr)

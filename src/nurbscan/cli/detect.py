@@ -1,8 +1,59 @@
 """``nurbscan detect``: find, trace and decode the grid's edge lines in a photograph."""
 
-from ._todo import register_todo
+from __future__ import annotations
+
+import argparse
+import sys
 
 
 def register(sub) -> None:
     """Add the ``detect`` sub-command."""
-    register_todo(sub, "detect", "Find, trace and decode the grid's edge lines in a photograph", 5)
+    p = sub.add_parser(
+        "detect", help="Find, trace and decode the grid's edge lines in a photograph",
+        description=(
+            "Find the sub-pixel edges of the projected colour grid in IMAGE, chain them into "
+            "lines, label each line with its band index and edge by decoding the PRMVS colour "
+            "windows, and write the lines and grid intersections to a JSON file. An image in "
+            "which no grid line can be decoded is an error (exit status 2)."
+        ),
+    )
+    p.add_argument("image", help="photograph of the object under the grid (PNG, TIFF, JPEG)")
+    p.add_argument("--pattern", required=True, help="the pattern's JSON file (pattern.json)")
+    p.add_argument("--white", help="the same view under white light (recommended)")
+    p.add_argument("-o", "--output", required=True, help="output file (lines.json)")
+    p.add_argument("--overlay", help="also write an overlay picture (PNG) of the decoded lines")
+    p.add_argument("--gamma", type=float, default=2.2,
+                   help="encoding gamma of the images (default 2.2; 1 for linear data)")
+    p.add_argument("--sigma", type=float, default=None,
+                   help="edge filter scale across the edges, camera px (default: automatic)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Detect the grid in one image; returns the exit status."""
+    import warnings
+
+    from ..detect import detect_grid, draw_overlay
+    from ..errors import NurbscanError
+    from ..io import read_image, write_image
+    from ..pattern import load_pattern
+
+    pattern = load_pattern(args.pattern)
+    image = read_image(args.image, as_float=False)
+    white = read_image(args.white, as_float=False) if args.white else None
+    if white is not None and white.shape != image.shape:
+        raise NurbscanError(f"{args.white}: size {white.shape[1]}x{white.shape[0]} does not "
+                            f"match {args.image} ({image.shape[1]}x{image.shape[0]})")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = detect_grid(image, pattern, white, gamma=args.gamma, sigma=args.sigma)
+    if result.nlines == 0:
+        raise NurbscanError(f"{args.image}: " + (result.warnings[0] if result.warnings
+                                                  else "no grid line decoded"))
+    result.save(args.output)
+    if args.overlay:
+        write_image(args.overlay, draw_overlay(image, result, pattern))
+    nv = int((result.direction == 0).sum())
+    print(f"{args.output}: {nv} vertical and {result.nlines - nv} horizontal edge lines, "
+          f"{len(result.x)} edge points, {len(result.cam)} grid intersections", file=sys.stderr)
+    return 0

@@ -1,0 +1,121 @@
+"""Benchmark of ``nurbscan.detect`` on the simulator's teapot at the default 7.1 MP camera.
+
+``bench()`` renders (once, cached in ``$NURBSCAN_BENCH_CACHE`` or the system temp folder) the
+teapot view 0 at 3072 x 2304 px with the default render settings at noise 0, 1x and 3x, and
+returns a dict with
+
+* ``seconds`` / ``seconds_warm``: wall time of :func:`nurbscan.detect.detect_grid` on the 1x
+  image (grid + white, uint8), first call and second call in a fresh process;
+* ``peak_mb``: peak resident memory of that process (``ru_maxrss``; the images themselves
+  included);
+* per noise level (``noise0``, ``noise1``, ``noise3``): the figures of
+  :func:`nurbscan.detect.evaluate_detection` against the view's truth.
+
+Run ``python benchmarks/bench_detect.py`` (prints JSON).
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+WIDTH, HEIGHT = 3072, 2304
+
+
+def _cache_dir() -> Path:
+    d = Path(os.environ.get("NURBSCAN_BENCH_CACHE", Path(tempfile.gettempdir())
+                            / "nurbscan_bench_detect"))
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def _pattern():
+    from nurbscan.simulate.rig import default_rig
+    from nurbscan.simulate.scan import default_pattern
+
+    return default_pattern(default_rig().projector)
+
+
+def render(noise: float, width: int = WIDTH, height: int = HEIGHT) -> Path:
+    """Render (or reuse) teapot view 0 at ``noise`` x the default noise; returns the .npz."""
+    path = _cache_dir() / f"teapot_{width}x{height}_noise{noise:g}.npz"
+    if path.exists():
+        return path
+    from nurbscan.simulate import make_scene
+    from nurbscan.simulate.render import RenderSettings, render_view
+    from nurbscan.simulate.rig import default_rig, scale_camera
+
+    rig = default_rig()
+    if (width, height) != (rig.camera.width, rig.camera.height):
+        rig = scale_camera(rig, width, height)
+    v = render_view(make_scene("teapot"), rig, _pattern(), 0.0,
+                    RenderSettings().with_noise_scale(noise), seed=0, stream=0)
+    t = v.truth
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, grid=v.grid, white=v.white, proj_x=t["proj_x"], proj_y=t["proj_y"],
+             lit=t["lit"], surface_id=t["surface_id"])
+    os.replace(tmp, path)
+    return path
+
+
+def _timed_child(path: str, queue) -> None:
+    import resource
+
+    from nurbscan.detect import detect_grid
+
+    z = np.load(path)
+    grid, white = z["grid"], z["white"]
+    pattern = _pattern()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        t0 = time.perf_counter()
+        detect_grid(grid, pattern, white)
+        t1 = time.perf_counter()
+        detect_grid(grid, pattern, white)
+        t2 = time.perf_counter()
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # kB -> MB (Linux)
+    queue.put({"seconds": t1 - t0, "seconds_warm": t2 - t1, "peak_mb": peak})
+
+
+def figures(path: Path) -> dict[str, float]:
+    """Detection figures of one cached view against its truth."""
+    from nurbscan.detect import detect_grid, evaluate_detection
+
+    z = np.load(path)
+    truth = {k: z[k] for k in ("proj_x", "proj_y", "lit", "surface_id")}
+    pattern = _pattern()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = detect_grid(z["grid"], pattern, z["white"])
+    ev = evaluate_detection(r, truth, pattern)
+    ev["lines"] = float(r.nlines)
+    return ev
+
+
+def bench(noises=(0.0, 1.0, 3.0)) -> dict:
+    """Run the benchmark (module notes); returns a JSON-ready dict."""
+    out: dict = {"image": f"teapot view 0, {WIDTH} x {HEIGHT} px (7.1 MP), default render"}
+    paths = {n: render(n) for n in noises}
+    ctx = mp.get_context("spawn")
+    q = ctx.Queue()
+    p = ctx.Process(target=_timed_child, args=(str(paths[1.0 if 1.0 in paths else noises[0]]),
+                                               q))
+    p.start()
+    res = q.get()
+    p.join()
+    out.update(res)
+    for n in noises:
+        out[f"noise{n:g}"] = {k: round(v, 4) for k, v in figures(paths[n]).items()}
+    return out
+
+
+if __name__ == "__main__":
+    sys.stdout.write(json.dumps(bench(), indent=1) + "\n")

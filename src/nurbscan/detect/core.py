@@ -1,0 +1,519 @@
+"""Grid detection in one photograph: normalise, find edges, trace lines, decode, intersect.
+
+method.md section 2; the steps are in :mod:`.normalize`, :mod:`.edges`, :mod:`.lines` and
+:mod:`.decode`. :func:`detect_grid` runs them and returns a
+:class:`~nurbscan.detect.result.DetectionResult`.
+
+Bad input (documented behaviour): an image that is not a 2-D grey or colour array, that holds
+non-finite values, or a white image of another size raises
+:class:`~nurbscan.errors.NurbscanError` (one line). A black, overexposed, blank or unrelated
+image, or a pattern that does not match the photograph, gives an *empty* result whose
+``warnings`` say why (and a :class:`UserWarning`); the command line turns an empty result into
+a one-line error.
+"""
+
+from __future__ import annotations
+
+import warnings as _warnings
+
+import cv2
+import numpy as np
+
+from ..errors import NurbscanError
+from .decode import band_crossings, bilinear, classify_colours, line_labels, window_votes
+from .edges import detect_edge_points
+from .lines import local_residual, trace_lines
+from .normalize import channel_max, normalize
+from .result import DetectionResult
+
+
+def as_float_image(image, what: str = "image", gamma: float = 1.0) -> np.ndarray:
+    """An (H, W, 3) float32 copy of ``image``, scaled to [0, 1] and raised to ``gamma``.
+
+    uint8 / uint16 data are scaled by their full scale and linearised through a look-up table;
+    grey images are repeated in the three channels; float data must be finite.
+    """
+    a = np.asarray(image)
+    if a.ndim == 2:
+        a = np.repeat(a[:, :, None], 3, axis=2)
+    if a.ndim != 3 or a.shape[2] not in (3, 4) or a.shape[0] < 16 or a.shape[1] < 16:
+        raise NurbscanError(f"{what}: expected an (H, W, 3) image of at least 16 x 16 px, "
+                            f"got shape {a.shape}")
+    a = a[:, :, :3]
+    if a.dtype in (np.uint8, np.uint16):
+        top = 255 if a.dtype == np.uint8 else 65535
+        lut = (np.arange(top + 1, dtype=np.float64) / top) ** gamma
+        return lut.astype(np.float32)[a]
+    if a.dtype.kind not in "fiu":
+        raise NurbscanError(f"{what}: unsupported sample type {a.dtype}")
+    a = a.astype(np.float32)
+    if not np.all(np.isfinite(a)):
+        raise NurbscanError(f"{what}: holds NaN or infinite values")
+    a = np.clip(a, 0.0, None)
+    return a**gamma if gamma != 1 else a
+
+
+def _fit_line(t: np.ndarray, v: np.ndarray, wts: np.ndarray) -> np.ndarray:
+    """Weighted least-squares v = c0 + c1 t per row of (G, K) arrays; returns (G, 2)."""
+    sw = wts.sum(1)
+    st = (wts * t).sum(1)
+    stt = (wts * t * t).sum(1)
+    sv = (wts * v).sum(1)
+    stv = (wts * t * v).sum(1)
+    det = sw * stt - st * st
+    with np.errstate(all="ignore"):
+        c1 = (sw * stv - st * sv) / det
+        c0 = (sv - c1 * st) / sw
+    return np.c_[c0, c1]
+
+
+def grid_intersections(x, y, line, direction, band, edge, coord, radius: float, k: int = 8):
+    """Crossings of labelled vertical and horizontal edges (method.md section 5, step 4).
+
+    A vertical edge (band i, edge e) and a horizontal edge (band j, edge f) cross once in the
+    projector, at (coord_v, coord_h), so once in the image. Candidate pairs are the
+    (vertical family, horizontal family) pairs with points closer than ``radius`` px (where a
+    band's colour hides the other band's edge, the two edge lines end at a common corner;
+    otherwise they cross). Around the candidate (the midpoint of the closest pair), each
+    family's ``k`` nearest points (of any of its segments) are fitted by a straight line,
+    x = a + b (y - y0) for the vertical edge and y = c + d (x - x0) for the horizontal one, and
+    the two lines are intersected. Pairs whose fitted points do not reach within ``radius`` of
+    the intersection are dropped.
+
+    Returns
+    -------
+    cam : (K, 2) camera px; proj : (K, 2) projector px; bands, edges, lines : (K, 2) int
+        (vertical, horizontal) band index, edge, and a line id of each family near the point.
+    """
+    from scipy.spatial import cKDTree
+
+    empty = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 2), np.int64),
+             np.zeros((0, 2), np.int64), np.zeros((0, 2), np.int64))
+    if len(band) == 0 or len(x) == 0:
+        return empty
+    fam_line = band * 2 + edge  # family within a direction
+    pd = direction[line]
+    pf = fam_line[line]
+    vi = np.nonzero(pd == 0)[0]
+    hi = np.nonzero(pd == 1)[0]
+    if len(vi) < 2 or len(hi) < 2:
+        return empty
+    tv = cKDTree(np.c_[x[vi], y[vi]])
+    th = cKDTree(np.c_[x[hi], y[hi]])
+    pairs = tv.sparse_distance_matrix(th, radius, output_type="ndarray")
+    if not len(pairs):
+        return empty
+    a, b, dist = vi[pairs["i"]], hi[pairs["j"]], pairs["v"]
+    key = pf[a].astype(np.int64) * 1_000_000 + pf[b]
+    o = np.lexsort((dist, key))
+    first = np.r_[True, key[o][1:] != key[o][:-1]]
+    a, b = a[o][first], b[o][first]
+    cx, cy = 0.5 * (x[a] + x[b]), 0.5 * (y[a] + y[b])
+    span = float(max(x.max(), y.max()) + 10.0)
+    out = []
+    for sel, fam, along, across, centre in ((vi, pf[a], y, x, cy), (hi, pf[b], x, y, cx)):
+        tree = cKDTree(np.c_[x[sel] + pf[sel] * span, y[sel]])
+        kk = min(k, len(sel))
+        dd, ii = tree.query(np.c_[cx + fam * span, cy], k=kk)
+        dd = dd.reshape(len(cx), kk)
+        ii = sel[np.minimum(ii.reshape(len(cx), kk), len(sel) - 1)]
+        wts = (np.isfinite(dd) & (dd < 4 * radius)).astype(np.float64)
+        fit = _fit_line(along[ii] - centre[:, None], across[ii], wts)
+        out.append((fit, centre, dd, wts, ii))
+    (fv, y0, dv, wv, iv), (fh, x0, dh, wh, ih) = out
+    # x = fv0 + fv1 (y - y0); y = fh0 + fh1 (x - x0)
+    with np.errstate(all="ignore"):
+        px = (fv[:, 0] + fv[:, 1] * (fh[:, 0] - fh[:, 1] * x0 - y0)) / (1 - fv[:, 1] * fh[:, 1])
+        py = fh[:, 0] + fh[:, 1] * (px - x0)
+    ok = np.isfinite(px) & np.isfinite(py) & (wv.sum(1) >= 4) & (wh.sum(1) >= 4)
+    ok &= np.hypot(px - cx, py - cy) < radius
+    lv, lh = line[a], line[b]
+    cam = np.c_[px, py][ok]
+    proj = np.c_[coord[lv], coord[lh]][ok]
+    return (cam, proj, np.c_[band[lv], band[lh]][ok], np.c_[edge[lv], edge[lh]][ok],
+            np.c_[lv, lh][ok])
+
+
+def grid_consistency(cam: np.ndarray, proj: np.ndarray, tol: float, k: int = 8) -> np.ndarray:
+    """Whether each grid intersection agrees with its neighbours (a local affine map).
+
+    The camera-to-projector map is smooth on a surface, so around each intersection it is
+    fitted (least squares) by an affine map from its ``k`` nearest neighbours in the image,
+    the intersection itself left out; an intersection whose projector point is more than
+    ``tol`` projector px from the map's prediction is inconsistent (a wrong label of one of
+    its lines). Returns a bool array (K,).
+    """
+    from scipy.spatial import cKDTree
+
+    n = len(cam)
+    if n < k + 2:
+        return np.ones(n, bool)
+    _, nb = cKDTree(cam).query(cam, k=k + 1)
+    nb = nb[:, 1:]
+    d = cam[nb] - cam[:, None, :]  # (n, k, 2), centred on the point: prediction = offset
+    a = np.concatenate([d, np.ones((n, k, 1))], axis=2)
+    ata = np.einsum("nki,nkj->nij", a, a) + np.eye(3)[None] * 1e-6
+    atb = np.einsum("nki,nkj->nij", a, proj[nb])
+    coef = np.linalg.solve(ata, atb)  # (n, 3, 2)
+    pred = coef[:, 2, :]
+    return np.hypot(*(pred - proj).T) < tol
+
+
+def propagate_labels(label, lr, lf, st, rw, ra, fa, lcode, seq, nbands: int, ratio: float,
+                     rounds: int = 4, min_votes: int = 3, min_agreement: float = 0.9):
+    """Extend the labelling to unlabelled lines from their labelled neighbours.
+
+    Along a row (column), band crossings k and k+1 that are adjacent (no edge between them) and
+    a plausible pitch apart (their distance over the band's width within 0.75 .. 1.25 of the
+    pattern's pitch / band) are consecutive bands. A run k-1, k, k+1 of such crossings with
+    similar spacings (ratio 0.75 .. 1.33) whose first two are labelled i - 1, i consistently
+    makes the third band i + 1 (and likewise backwards). An unlabelled line takes the index
+    its crossings vote for when ``min_votes`` agree (share ``min_agreement``) and the line's
+    own colour is the pattern's colour of that band; each round extends the labelled region
+    by one band.
+
+    Parameters are per crossing (K,): the lines of its rising / falling point, its start
+    position in the sorted edge list, its row, and the rising / falling coordinates; ``lcode``
+    the colour code of each line (-1 unknown); ``seq`` the pattern sequence.
+    """
+    k = _adjacent(st, rw, ra, fa, ratio)
+    if len(k) < 2:
+        return label
+    mid = 0.5 * (ra + fa)
+    # runs of three neighbouring crossings k-1, k, k+1 with similar spacing
+    isadj = np.zeros(len(st), bool)
+    isadj[k] = True
+    k2 = k[isadj[np.maximum(k - 1, 0)] & (k >= 1)]
+    with np.errstate(all="ignore"):
+        q = (mid[k2 + 1] - mid[k2]) / (mid[k2] - mid[k2 - 1])
+    k2 = k2[(q > 0.75) & (q < 1.33)]
+    label = label.copy()
+    for _ in range(rounds):
+        cr, cf = label[lr], label[lf]
+        cl = np.where(cr < 0, cf, np.where((cf < 0) | (cf == cr), cr, -2))
+        # a labelled, consistent pair (k-1, k) extends to k+1; (k, k+1) extends to k-1
+        fwd = (cl[k2 - 1] >= 0) & (cl[k2] == cl[k2 - 1] + 1)
+        bwd = (cl[k2 + 1] >= 0) & (cl[k2] == cl[k2 + 1] - 1)
+        src = np.r_[cl[k2][fwd], cl[k2][bwd]]
+        dst = np.r_[k2[fwd] + 1, k2[bwd] - 1]
+        val = src + np.r_[np.ones(fwd.sum(), np.int64), -np.ones(bwd.sum(), np.int64)]
+        ok = src >= 0
+        dst, val = dst[ok], val[ok]
+        ok = (val >= 0) & (val < nbands)
+        dst, val = dst[ok], val[ok]
+        vl = np.r_[lr[dst], lf[dst]]
+        vv = np.r_[val, val]
+        free = label[vl] < 0
+        vl, vv = vl[free], vv[free]
+        if not len(vl):
+            break
+        new, _, _ = line_labels(vl, None, vv, len(label), min_votes=min_votes,
+                                min_agreement=min_agreement, direct=True)
+        cand = np.nonzero(new >= 0)[0]
+        col = lcode[cand]
+        ok = col == seq[new[cand]]
+        if not np.any(ok):
+            break
+        label[cand[ok]] = new[cand[ok]]
+    return label
+
+
+def _adjacent(st, rw, ra, fa, ratio: float, tol: float = 0.25) -> np.ndarray:
+    """Indices k where band crossings k and k+1 are neighbouring bands (see propagate)."""
+    if len(st) < 2:
+        return np.zeros(0, np.int64)
+    adj = (st[1:] == st[:-1] + 2) & (rw[1:] == rw[:-1])
+    spacing = 0.5 * (ra[1:] + fa[1:] - ra[:-1] - fa[:-1])
+    width = 0.5 * (fa[1:] - ra[1:] + fa[:-1] - ra[:-1])
+    with np.errstate(all="ignore"):
+        adj &= np.abs(spacing / np.maximum(width, 1e-6) / ratio - 1.0) < tol
+    return np.nonzero(adj)[0]
+
+
+def check_adjacency(label, lr, lf, st, rw, ra, fa, ratio: float) -> np.ndarray:
+    """Unlabel lines whose labels contradict their neighbours along the rows (columns).
+
+    For neighbouring band crossings k, k+1 (:func:`_adjacent`) that are both labelled, the
+    labels must be i and i + 1. A line that takes part in at least two contradicting pairs
+    and in more contradicting than agreeing ones gets label -1.
+    """
+    k = _adjacent(st, rw, ra, fa, ratio)
+    if not len(k):
+        return label
+    cr, cf = label[lr], label[lf]
+    cl = np.where(cr < 0, cf, np.where((cf < 0) | (cf == cr), cr, -2))
+    both = (cl[k] >= 0) & (cl[k + 1] >= 0)
+    k = k[both]
+    agree = cl[k + 1] == cl[k] + 1
+    lines = np.r_[lr[k], lf[k], lr[k + 1], lf[k + 1]]
+    ag = np.r_[agree, agree, agree, agree]
+    n = len(label)
+    bad = np.bincount(lines[~ag], minlength=n)
+    good = np.bincount(lines[ag], minlength=n)
+    out = label.copy()
+    out[(bad >= 2) & (bad > good)] = -1
+    return out
+
+
+def band_width_px(signal: np.ndarray, pattern, valid: np.ndarray | None = None) -> float:
+    """Median width of the bands along the rows of a central crop (<= 768 px square), px.
+
+    A first, cheap pass (edges at scale 1 px, rising / falling pairs along the rows) that
+    sets the scale of the main pass; NaN when no band is found.
+    """
+    h, w = signal.shape
+    c = 384
+    y0, x0 = max(h // 2 - c, 0), max(w // 2 - c, 0)
+    crop = signal[y0:y0 + 2 * c, x0:x0 + 2 * c]
+    vc = None if valid is None else valid[y0:y0 + 2 * c, x0:x0 + 2 * c]
+    pts = detect_edge_points(crop, sigma=1.0, valid=vc)
+    k = pts.cls < 2
+    o, st = band_crossings(pts.x[k], pts.iy[k], pts.cls[k] % 2, pattern.band / pattern.pitch)
+    if len(st) < 10:
+        return float("nan")
+    a = pts.x[k][o]
+    return float(np.median(a[st + 1] - a[st]))
+
+
+def auto_sigma(band_px: float) -> float:
+    """Edge filter scale for bands ``band_px`` wide: band / 7, clipped to [0.8, 1.5] px.
+
+    Wide enough to average the noise, narrow enough that a band's two edges (and the gaps'
+    edges) do not bias each other: the Gaussian tail of the neighbouring edge at distance
+    ``band_px`` is exp(-band^2 / (2 sigma^2)) <= exp(-24) of the peak at band = 7 sigma.
+    """
+    if not np.isfinite(band_px):
+        return 1.0
+    return float(np.clip(band_px / 7.0, 0.8, 1.5))
+
+
+def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float | None = None,
+                sigma_along: float | None = None,
+                threshold: float = 0.06, min_strength: float = 0.12, min_length: int = 4,
+                min_votes: int = 3,
+                min_agreement: float = 0.9, min_consensus: float = 0.85,
+                crossing_margin: float = 0.0, max_residual: float = 0.3,
+                window: int = 31) -> DetectionResult:
+    """Find, trace and decode the grid's edge lines in one photograph.
+
+    Parameters
+    ----------
+    image : ndarray (H, W, 3) (or (H, W)), uint8, uint16 or float in [0, 1]
+        The object under the projected grid (gamma-encoded as cameras write images).
+    pattern : nurbscan.pattern.Pattern
+        The projected pattern.
+    white : ndarray like ``image``, optional
+        The same view under white light (albedo and shading normalisation).
+    gamma : float
+        The images' encoding gamma; they are linearised by ``v ** gamma`` (1 = linear data).
+    sigma : float, optional
+        Scale of the Gaussian derivative filters across the edges, camera px; default
+        :func:`auto_sigma` of the band width measured in a first pass.
+    sigma_along : float, optional
+        Smoothing along the edges, camera px (default ``sigma``).
+    threshold : float
+        Least gradient of an edge in the normalised signal, per px.
+    min_strength : float
+        Least gradient of an edge point kept in the result, per px.
+    min_length : int
+        Fewest points of an edge line.
+    min_votes, min_agreement : int, float
+        Least votes for, and share of votes of, a line's band index.
+    crossing_margin : float
+        Drop edge points closer than this (camera px) to an edge pixel of the other direction
+        (near a crossing band's corner the profile is disturbed); 0 keeps them. 3 px halves
+        the 95th percentile error at the cost of about a fifth of the points.
+    max_residual : float
+        Drop edge points farther than this (px) from the straight line through their chain
+        neighbours (:func:`~nurbscan.detect.lines.local_residual`); 0 keeps them.
+    min_consensus : float
+        Least share of all window votes that agree with their line's majority; below it the
+        pattern is taken not to match the photograph (empty result with a warning).
+    window : int
+        Local normalisation window without a white image, px.
+
+    Returns
+    -------
+    DetectionResult
+        Only lines labelled with confidence; empty (with ``warnings``) when no grid is found.
+    """
+    if not gamma > 0:
+        raise NurbscanError(f"gamma={gamma!r}: must be positive")
+    lin = as_float_image(image, gamma=gamma)
+    h, w = lin.shape[:2]
+    wl = None
+    if white is not None:
+        wl = as_float_image(white, "white image", gamma=gamma)
+        if wl.shape != lin.shape:
+            raise NurbscanError(f"white image: size {wl.shape[1]}x{wl.shape[0]} does not "
+                                f"match the grid image's {w}x{h}")
+
+    def give_up(msg: str) -> DetectionResult:
+        _warnings.warn(msg, UserWarning, stacklevel=3)
+        return DetectionResult.empty((w, h), (msg,))
+
+    sub = channel_max(lin[::4, ::4])  # screening on a subsample
+    if np.percentile(sub, 99.5) < 0.08**gamma:
+        return give_up("image: too dark (black), no grid found")
+    if np.mean(sub > 0.98**gamma) > 0.5:
+        return give_up("image: overexposed (more than half the pixels saturated), no grid found")
+    nrm = normalize(lin, wl, window=window)
+    del lin, wl
+    sig = nrm.signal
+    if sigma is None:
+        sigma = auto_sigma(band_width_px(sig, pattern, nrm.valid))
+    elif not sigma > 0:
+        raise NurbscanError(f"sigma={sigma!r}: must be positive")
+    pts = detect_edge_points(sig, sigma=sigma, threshold=threshold, valid=nrm.valid,
+                             sigma_along=sigma_along)
+    # a dark gap: well below the dimmest single-primary band (sum of channels ~1 in a band)
+    dark_level = 0.35
+    if len(pts.x) < 20:
+        return give_up("image: blank (no edges), no grid found")
+    order, line = trace_lines(pts, (h, w), min_length=min_length)
+    nlines = int(line.max()) + 1 if len(line) else 0
+    px, py = pts.x[order], pts.y[order]
+    cls = pts.cls[order].astype(np.int64)
+    ix, iy = pts.ix[order], pts.iy[order]
+    ratio = pattern.band / pattern.pitch
+    # band crossings along rows (vertical bands) and columns (horizontal bands)
+    parts = []
+    for d, name in ((0, "vertical"), (1, "horizontal")):
+        sel = np.nonzero((cls // 2) == d)[0]
+        across = px[sel] if d == 0 else py[sel]
+        run = iy[sel] if d == 0 else ix[sel]
+        o, st = band_crossings(across, run, cls[sel] % 2, ratio)
+        a = across[o]
+        mid = 0.5 * (a[st] + a[st + 1])
+        rr = run[o[st]].astype(np.float64)
+        samples = nrm.colour_at(mid, rr) if d == 0 else nrm.colour_at(rr, mid)
+        # a crossing is clean when a gap beside it is dark: the row (column) is not inside a
+        # band of the other direction, whose colour would mix with this band's
+        nxt = np.minimum(st + 2, len(a) - 1)
+        gap_mid = 0.5 * (a[st + 1] + a[nxt])
+        lev = bilinear(sig, gap_mid, rr) if d == 0 else bilinear(sig, rr, gap_mid)
+        dark = (lev < dark_level) & (nxt == st + 2) & (run[o[nxt]] == run[o[st]])
+        clean = dark | np.r_[False, dark[:-1]]
+        parts.append((sel, across, run, o, st, samples, clean, name))
+    allsamp = np.concatenate([q[5][q[6]] for q in parts]) if parts else np.zeros((0, 3))
+    _, centres = classify_colours(allsamp, pattern.rgb)
+    vp, vi, vj, spacing, props = [], [], [], [], []
+    paired = np.zeros(len(px), bool)
+    for sel, across, run, o, st, samples, clean, name in parts:
+        codes, _ = classify_colours(samples, pattern.rgb, iterations=0, centres=centres)
+        # the colour of a band is a property of its edge lines: vote over the clean crossings
+        lr, lf = line[sel[o[st]]], line[sel[o[st + 1]]]
+        good = clean & (codes >= 0)
+        lcode, _, _ = line_labels(np.r_[lr[good], lf[good]], None,
+                                  np.r_[codes[good], codes[good]], nlines, min_votes=2,
+                                  min_agreement=0.7, direct=True)
+        cr, cf = lcode[lr], lcode[lf]
+        ccode = np.where(cr < 0, cf, np.where((cf < 0) | (cf == cr), cr, -1))
+        p_, i_, j_ = window_votes(o, st, run, across, ccode, pattern, name)
+        a = across[o]
+        props.append((lr, lf, st, run[o[st]], a[st], a[st + 1], lcode, name))
+        paired[sel[o[st]]] = True
+        paired[sel[o[st + 1]]] = True
+        vp.append(sel[p_])
+        vi.append(i_)
+        vj.append(j_)
+        if len(st) > 1:
+            a = across[o]
+            mids = 0.5 * (a[st] + a[st + 1])
+            same = (st[1:] == st[:-1] + 2)
+            spacing.append((mids[1:] - mids[:-1])[same])
+    label, votes, agree = line_labels(line, np.concatenate(vp), np.concatenate(vi), nlines,
+                                      min_votes=min_votes, min_agreement=min_agreement,
+                                      vote_pos=np.concatenate(vj), min_positions=pattern.n)
+    # a pattern that does not match the photograph still decodes every window (all windows of
+    # the sequence exist), but neighbouring windows then rarely agree: reject the whole image
+    with np.errstate(all="ignore"):
+        total = np.where(agree > 0, votes / np.maximum(agree, 1e-12), 0.0)
+    consensus = float(votes.sum() / total.sum()) if total.sum() > 0 else 0.0
+    if total.sum() > 0 and consensus < min_consensus:
+        return give_up(f"pattern: does not match the photograph (only {consensus:.0%} of the "
+                       "colour windows agree with their neighbours)")
+    seq = np.asarray(pattern.sequence)
+    for lr, lf, st, rw, ra, fa, lcode, name in props:
+        label = propagate_labels(label, lr, lf, st, rw, ra, fa, lcode, seq,
+                                 pattern.nbands(name), pattern.pitch / pattern.band)
+    for lr, lf, st, rw, ra, fa, _, _ in props:
+        label = check_adjacency(label, lr, lf, st, rw, ra, fa, pattern.pitch / pattern.band)
+    ldir = np.zeros(nlines, np.int64)
+    if len(line):
+        ldir[line] = cls // 2
+        ledge = np.zeros(nlines, np.int64)
+        ledge[line] = cls % 2
+    else:
+        ledge = np.zeros(0, np.int64)
+    good = label >= 0
+    if not np.any(good):
+        return give_up("image: no grid line could be decoded (unrelated image, or a pattern "
+                       "file that does not match the photograph)")
+    # keep the labelled lines, renumbered
+    new_id = np.cumsum(good) - 1
+    # keep the points of labelled lines that are one edge of a band crossing (a rising /
+    # falling pair of plausible width along the row or column): an edge whose partner is
+    # hidden lies inside a band of the other direction, near its corners, and is less exact
+    # and whose edge is clear of the noise (low-contrast edges are the least exact)
+    paired &= pts.strength[order] >= min_strength
+    if max_residual > 0:
+        along = np.where(cls < 2, py, px)
+        across = np.where(cls < 2, px, py)
+        paired &= local_residual(along, across, line) <= max_residual
+    if crossing_margin > 0:
+        # near a crossing band's edge the row (column) profile is disturbed by the corner
+        for d in (0, 1):
+            mask = np.full((h, w), 255, np.uint8)
+            o_ = (cls // 2) == 1 - d
+            mask[iy[o_], ix[o_]] = 0
+            dist_o = cv2.distanceTransform(mask, cv2.DIST_L2, 3)
+            sel_d = (cls // 2) == d
+            paired[sel_d] &= dist_o[iy[sel_d], ix[sel_d]] >= crossing_margin
+    good &= np.bincount(line[paired], minlength=nlines) >= 2
+    new_id = np.cumsum(good) - 1
+    keep = good[line] & paired
+    px, py, line = px[keep], py[keep], new_id[line[keep]]
+    strength = pts.strength[order][keep]
+    lab = label[good]
+    ldir, ledge = ldir[good], ledge[good]
+    nl = len(lab)
+    counts = np.bincount(line, minlength=nl)
+    stop = np.cumsum(counts)
+    start = stop - counts
+    coord = np.where(ldir == 0, pattern.edge_coordinate("vertical", np.where(ldir == 0, lab, 0),
+                                                        ledge),
+                     pattern.edge_coordinate("horizontal", np.where(ldir == 1, lab, 0), ledge))
+    sp = np.concatenate(spacing) if spacing else np.zeros(0)
+    pitch_px = float(np.median(sp)) if len(sp) else 20.0
+    band_px = pitch_px * pattern.band / pattern.pitch
+    cam, proj, cb, ce, cl = grid_intersections(px, py, line, ldir, lab, ledge, coord,
+                                               radius=max(2.0, 0.5 * band_px) + 1.5 * sigma)
+    # whole-grid consistency: intersections that disagree with their neighbours reveal a
+    # wrongly labelled line; lines with more inconsistent than consistent crossings are dropped
+    okc = grid_consistency(cam, proj, tol=0.5 * pattern.band)
+    bad_n = np.bincount(cl[~okc].ravel(), minlength=nl)
+    good_n = np.bincount(cl[okc].ravel(), minlength=nl)
+    drop = (bad_n >= 2) & (bad_n > good_n)
+    if np.any(drop):
+        keepl = ~drop
+        new_id = np.cumsum(keepl) - 1
+        kp = keepl[line]
+        px, py, strength, line = px[kp], py[kp], strength[kp], new_id[line[kp]]
+        lab, ldir, ledge, coord = lab[keepl], ldir[keepl], ledge[keepl], coord[keepl]
+        votes_k, agree_k = votes[good][keepl], agree[good][keepl]
+        sel_i = okc & keepl[cl].all(axis=1)
+        cam, proj, cb, ce = cam[sel_i], proj[sel_i], cb[sel_i], ce[sel_i]
+        cl = new_id[cl[sel_i]]
+        nl = len(lab)
+        counts = np.bincount(line, minlength=nl)
+        stop = np.cumsum(counts)
+        start = stop - counts
+    else:
+        votes_k, agree_k = votes[good], agree[good]
+        cam, proj, cb, ce, cl = cam[okc], proj[okc], cb[okc], ce[okc], cl[okc]
+    return DetectionResult(
+        image_size=(w, h), x=px, y=py, strength=strength.astype(np.float32), line=line,
+        direction=ldir, band=lab, edge=ledge, coord=coord, start=start, stop=stop,
+        votes=votes_k, agreement=agree_k, cam=cam, proj=proj, cross_band=cb,
+        cross_edge=ce, cross_line=cl, warnings=())

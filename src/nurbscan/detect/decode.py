@@ -1,0 +1,237 @@
+"""Decoding the PRMVS grid: band colours, windows of n bands, and a vote per line.
+
+method.md sections 1-2. Along every pixel row the vertical-edge points, sorted by x, alternate
+rising / falling where the row crosses vertical bands; a rising point followed by a falling one
+(narrower than the band pitch suggests) is one *band crossing*, whose colour is read at its
+centre. n consecutive band crossings of one row that are evenly spaced (no band missing between
+them) form a window; ``pattern.lookup`` gives the index of its first band, hence a vote for the
+band index of every crossing in the window (its own position in the window added). Columns and
+the horizontal-edge points are handled the same way. Each edge line collects the votes of all
+its points; it is labelled with the winning index only when enough votes agree (``min_votes``
+and a ``min_agreement`` fraction), so that a misread colour, which spoils a few windows only,
+is outvoted, and lines without a clear majority are dropped (label -1), not guessed.
+
+Colour classification: the chromaticity ``c / max(c)`` of the normalised colour at each band
+centre is assigned to the nearest of the q pattern colours, whose centres are first adapted to
+the image by a few Lloyd (k-means) iterations started at the ideal colours (this absorbs the
+camera's colour crosstalk); ambiguous samples (nearest / second-nearest distance ratio above
+``ambiguity``) get code -1 and spoil their windows.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear samples of ``img`` (H, W[, C]) at points (x, y) px (clamped to the image)."""
+    h, w = img.shape[:2]
+    x = np.clip(x, 0, w - 1.001)
+    y = np.clip(y, 0, h - 1.001)
+    x0 = np.floor(x).astype(np.int64)
+    y0 = np.floor(y).astype(np.int64)
+    fx = x - x0
+    fy = y - y0
+    if img.ndim == 3:
+        fx = fx[:, None]
+        fy = fy[:, None]
+    return ((img[y0, x0] * (1 - fx) + img[y0, x0 + 1] * fx) * (1 - fy)
+            + (img[y0 + 1, x0] * (1 - fx) + img[y0 + 1, x0 + 1] * fx) * fy)
+
+
+def classify_colours(samples: np.ndarray, rgb: np.ndarray, iterations: int = 5,
+                     ambiguity: float = 0.7, min_level: float = 0.25,
+                     centres: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Colour code of each sample (module notes).
+
+    Parameters
+    ----------
+    samples : ndarray (N, 3)
+        Normalised colours.
+    rgb : ndarray (q, 3)
+        Pattern colours (0..255).
+    iterations : int
+        Lloyd iterations adapting the colour centres.
+    ambiguity : float
+        Largest ratio of the distances to the nearest and the second-nearest centre.
+    min_level : float
+        Least brightness (max channel) of a band centre.
+    centres : ndarray (q, 3), optional
+        Starting chromaticity centres (default the pattern's colours).
+
+    Returns
+    -------
+    codes : ndarray int64 (N,)
+        Colour code 0..q-1, or -1 (ambiguous or too dark).
+    centres : ndarray (q, 3)
+        Adapted chromaticity centres.
+    """
+    s = np.maximum(np.asarray(samples, np.float64), 0.0)
+    level = s.max(axis=1)
+    chroma = s / np.maximum(level, 1e-6)[:, None]
+    if centres is None:
+        centres = np.asarray(rgb, np.float64) / 255.0
+        centres = centres / np.maximum(centres.max(axis=1, keepdims=True), 1e-6)
+    centres = np.array(centres, np.float64)
+    ok = level > min_level
+    train = chroma[ok]
+    if len(train) > 20000:
+        train = train[:: len(train) // 20000 + 1]
+    q = len(centres)
+    for _ in range(iterations if len(train) >= 10 * q else 0):
+        d = ((train[:, None, :] - centres[None]) ** 2).sum(-1)
+        a = d.argmin(1)
+        cnt = np.bincount(a, minlength=q)
+        for c in range(3):
+            sums = np.bincount(a, weights=train[:, c], minlength=q)
+            centres[:, c] = np.where(cnt > 5, sums / np.maximum(cnt, 1), centres[:, c])
+    d = np.sqrt(((chroma[:, None, :] - centres[None]) ** 2).sum(-1))
+    o = np.argsort(d, axis=1)
+    d1 = np.take_along_axis(d, o[:, :1], 1)[:, 0]
+    d2 = np.take_along_axis(d, o[:, 1:2], 1)[:, 0]
+    codes = np.where(ok & (d1 < ambiguity * d2), o[:, 0], -1)
+    return codes.astype(np.int64), centres
+
+
+def band_crossings(across: np.ndarray, run: np.ndarray, cls: np.ndarray, ratio: float,
+                   tol: float = 0.6) -> tuple[np.ndarray, np.ndarray]:
+    """Band crossings along rows (or columns) from edge points of one direction.
+
+    Parameters
+    ----------
+    across : ndarray (N,)
+        Sub-pixel coordinate across the bands (x for vertical bands), px.
+    run : ndarray (N,) int
+        Row (column) of each point.
+    cls : ndarray (N,) int
+        0 rising, 1 falling.
+    ratio : float
+        Pattern band / pitch.
+    tol : float
+        Relative tolerance on the band width against the local pitch.
+
+    Returns
+    -------
+    order : ndarray (N,) int64
+        Points sorted by (run, across).
+    start : ndarray (K,) int64
+        Positions in ``order`` of the rising point of each band crossing (the falling one is
+        the next position).
+    """
+    order = np.lexsort((across, run))
+    a, r, c = across[order], run[order], cls[order]
+    n = len(a)
+    if n < 2:
+        return order, np.zeros(0, np.int64)
+    p = np.arange(n - 1)
+    isb = (c[p] == 0) & (c[p + 1] == 1) & (r[p] == r[p + 1])
+    start = p[isb]
+    width = a[start + 1] - a[start]
+    # local pitch: distance to the neighbouring crossings of the same row
+    mid = 0.5 * (a[start] + a[start + 1])
+    nb = np.full(len(start), np.nan)
+    if len(start) > 1:
+        same_next = (start[1:] == start[:-1] + 2) & (r[start[1:]] == r[start[:-1]])
+        dnext = np.where(same_next, mid[1:] - mid[:-1], np.nan)
+        both = np.c_[np.r_[np.nan, dnext], np.r_[dnext, np.nan]]
+        with np.errstate(all="ignore"):
+            nb = np.fmin(both[:, 0], both[:, 1])
+    with np.errstate(invalid="ignore"):
+        okw = np.isnan(nb) | ((width > (1 - tol) * ratio * nb) & (width < (1 + tol) * ratio * nb))
+    return order, start[okw & (width > 0.5)]
+
+
+def window_votes(order: np.ndarray, start: np.ndarray, run: np.ndarray, across: np.ndarray,
+                 codes: np.ndarray, pattern, direction: str, dark_after: np.ndarray | None = None,
+                 spacing_tol: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+    """Votes (point, band index) from windows of n consecutive band crossings.
+
+    ``codes`` holds the colour code of each crossing in ``start``; ``dark_after`` (optional,
+    bool per crossing) says whether the gap after the crossing is dark (a row running inside a
+    band of the other direction sees lit gaps and only the bands that colour does not hide, so
+    its windows are not trusted). Returns the point indices (into the arrays given to
+    :func:`band_crossings`) and the band index each votes for; every window votes for the
+    rising and the falling point of each of its n crossings.
+    """
+    n = pattern.n
+    k = len(start)
+    if k < n:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    r = run[order]
+    a = across[order]
+    mid = 0.5 * (a[start] + a[start + 1])
+    w0 = np.arange(k - n + 1)
+    ok = np.ones(len(w0), bool)
+    for j in range(1, n):
+        ok &= (start[w0 + j] == start[w0 + j - 1] + 2) & (r[start[w0 + j]] == r[start[w0]])
+        if dark_after is not None:
+            ok &= dark_after[w0 + j - 1]
+    if n >= 3:
+        gaps = np.stack([mid[w0 + j] - mid[w0 + j - 1] for j in range(1, n)], 1)
+        with np.errstate(all="ignore"):
+            ok &= (gaps.max(1) < (1 + spacing_tol) * gaps.min(1)) & (gaps.min(1) > 0)
+    win = np.stack([codes[w0 + j] for j in range(n)], 1)
+    ok &= (win >= 0).all(1)
+    w0 = w0[ok]
+    idx = pattern.lookup(win[ok], direction)
+    good = idx >= 0
+    w0, idx = w0[good], idx[good]
+    pts, lab, pos = [], [], []
+    for j in range(n):
+        s = start[w0 + j]
+        pts += [order[s], order[s + 1]]
+        lab += [idx + j, idx + j]
+        pos += [np.full(len(s), j), np.full(len(s), j)]
+    return np.concatenate(pts), np.concatenate(lab), np.concatenate(pos)
+
+
+def line_labels(line: np.ndarray, vote_pts: np.ndarray | None, vote_idx: np.ndarray,
+                nlines: int, min_votes: int = 3, min_agreement: float = 0.8,
+                direct: bool = False, vote_pos: np.ndarray | None = None,
+                min_positions: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Majority band index of each line from the votes of its points.
+
+    ``line[vote_pts]`` is the line of each vote (``direct``: ``line`` itself lists the line
+    of each vote and ``vote_pts`` is ignored); ``vote_idx`` the value voted for (>= 0).
+    With ``vote_pos`` (the line's position in each voting window), the winner must also be
+    supported from at least ``min_positions`` different window positions: windows at
+    different positions read different colours, so one misread colour repeated along a line
+    (every row reads the same few bands) cannot confirm a wrong label on its own.
+
+    Returns
+    -------
+    label : ndarray int64 (nlines,)
+        Winning band index, -1 where there are fewer than ``min_votes`` for it or it has less
+        than ``min_agreement`` of the line's votes.
+    votes : ndarray int64 (nlines,)
+        Votes for the winner.
+    agreement : ndarray float64 (nlines,)
+        Winner's share of the line's votes (0 without votes).
+    """
+    label = np.full(nlines, -1, np.int64)
+    votes = np.zeros(nlines, np.int64)
+    agree = np.zeros(nlines, np.float64)
+    ln = np.asarray(line if direct else line[vote_pts], np.int64)
+    if not len(ln):
+        return label, votes, agree
+    key = ln * 100000 + vote_idx
+    uk, cnt = np.unique(key, return_counts=True)
+    kl = uk // 100000
+    ki = uk % 100000
+    total = np.bincount(kl, weights=cnt, minlength=nlines)
+    o = np.lexsort((-cnt, kl))
+    first = np.r_[True, kl[o][1:] != kl[o][:-1]]
+    wl, wi, wc = kl[o][first], ki[o][first], cnt[o][first]
+    votes[wl] = wc
+    agree[wl] = wc / total[wl]
+    good = (wc >= min_votes) & (wc >= min_agreement * total[wl])
+    if vote_pos is not None:
+        trip = np.unique((ln * 100000 + vote_idx) * 16 + vote_pos)
+        npos = np.unique(trip // 16, return_counts=True)
+        support = np.zeros(len(wl), np.int64)
+        j = np.searchsorted(npos[0], wl * 100000 + wi)
+        hit = (j < len(npos[0])) & (npos[0][np.minimum(j, len(npos[0]) - 1)] == wl * 100000 + wi)
+        support[hit] = npos[1][j[hit]]
+        good &= support >= min_positions
+    label[wl[good]] = wi[good]
+    return label, votes, agree

@@ -1,0 +1,196 @@
+"""Measuring a detection against the simulator's truth (per-pixel projector coordinates).
+
+The truth field F (``proj_x`` for vertical-band edges, ``proj_y`` for horizontal ones) is
+interpolated bilinearly at each detected point p; the true edge of projector coordinate c near p
+is the level set F = c, and to first order the distance from p to it, in camera px, is
+``(F(p) - c) / |grad F(p)|`` (gradient by central differences of the interpolant, +-0.5 px).
+Only points whose four surrounding pixels lie on one lit surface are measured.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+
+import numpy as np
+
+from ..errors import NurbscanError
+from .decode import bilinear
+from .result import DetectionResult
+
+
+def _load_truth(truth) -> Mapping[str, np.ndarray]:
+    if isinstance(truth, str | os.PathLike):
+        try:
+            with np.load(truth) as z:
+                return {k: z[k] for k in ("proj_x", "proj_y", "lit", "surface_id")}
+        except (OSError, KeyError, ValueError) as exc:
+            raise NurbscanError(f"{truth}: not a truth .npz with proj_x, proj_y, lit, "
+                                f"surface_id ({exc})") from None
+    return truth
+
+
+def _good_cells(truth) -> np.ndarray:
+    """(H, W) bool: the cell [x, x+1] x [y, y+1] has four lit pixels of one surface."""
+    sid = np.asarray(truth["surface_id"])
+    ok = (np.asarray(truth["lit"]).astype(bool) & (sid >= 0) & np.isfinite(truth["proj_x"])
+          & np.isfinite(truth["proj_y"]))
+    g = np.zeros_like(ok)
+    g[:-1, :-1] = (ok[:-1, :-1] & ok[1:, :-1] & ok[:-1, 1:] & ok[1:, 1:]
+                   & (sid[:-1, :-1] == sid[1:, :-1]) & (sid[:-1, :-1] == sid[:-1, 1:])
+                   & (sid[:-1, :-1] == sid[1:, 1:]))
+    return g
+
+
+def _field_at(f: np.ndarray, x: np.ndarray, y: np.ndarray):
+    v = bilinear(f, x, y)
+    fx = bilinear(f, x + 0.5, y) - bilinear(f, x - 0.5, y)
+    fy = bilinear(f, x, y + 0.5) - bilinear(f, x, y - 0.5)
+    return v, fx, fy
+
+
+def _nearest_edge(edges: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Index into the flattened (nbands*2) edge table of the edge nearest each value."""
+    flat = edges.reshape(-1)
+    o = np.argsort(flat)
+    s = flat[o]
+    j = np.clip(np.searchsorted(s, f), 1, len(s) - 1)
+    pick = np.where(np.abs(s[j] - f) < np.abs(s[j - 1] - f), j, j - 1)
+    return o[pick]
+
+
+def evaluate_detection(result: DetectionResult, truth, pattern, match_radius: float = 1.0
+                       ) -> dict[str, float]:
+    """Accuracy, labelling and coverage of a detection against the truth of its view.
+
+    Parameters
+    ----------
+    result : DetectionResult
+    truth : path of a truth ``.npz`` or mapping with ``proj_x``, ``proj_y`` (H, W) projector px,
+        ``lit`` (H, W) and ``surface_id`` (H, W)
+    pattern : nurbscan.pattern.Pattern
+    match_radius : float
+        Largest distance (camera px) from a true edge crossing to a detected point of the same
+        label for the crossing to count as covered.
+
+    Returns
+    -------
+    dict
+        ``rms_px`` (RMS distance of correctly labelled measured points to their true edge,
+        camera px), ``median_abs_px``, ``p95_abs_px``, ``measured`` (points measured),
+        ``label_rate`` (share of measured points with the right band and edge),
+        ``wrong_lines_over_20px`` (lines longer than 20 px labelled wrongly), ``coverage``
+        (share of the true, lit, visible edge length detected with the right label; a true
+        edge is sampled where it crosses a pixel row (vertical-band edges) or column), ``true``
+        crossings, ``intersections`` and their ``intersection_rms_px``.
+    """
+    t = _load_truth(truth)
+    fxf = np.asarray(t["proj_x"], np.float64)
+    fyf = np.asarray(t["proj_y"], np.float64)
+    h, w = fxf.shape
+    if tuple(result.image_size) != (w, h):
+        raise NurbscanError(f"truth: size {w}x{h} does not match the detection's "
+                            f"{result.image_size[0]}x{result.image_size[1]}")
+    cells = _good_cells(t)
+    fx0 = np.nan_to_num(fxf)
+    fy0 = np.nan_to_num(fyf)
+    out: dict[str, float] = {}
+    # --- edge points
+    x, y = result.x, result.y
+    d = result.point_direction
+    xi = np.clip(np.floor(x).astype(np.int64), 0, w - 1)
+    yi = np.clip(np.floor(y).astype(np.int64), 0, h - 1)
+    xl = np.clip(np.floor(x - 0.5).astype(np.int64), 0, w - 1)
+    yl = np.clip(np.floor(y - 0.5).astype(np.int64), 0, h - 1)
+    meas = cells[yi, xi] & cells[yl, xl] & (x > 1) & (y > 1) & (x < w - 2) & (y < h - 2)
+    dist = np.full(len(x), np.nan)
+    correct = np.zeros(len(x), bool)
+    for dd, f, edges in ((0, fx0, pattern.vertical_edges), (1, fy0, pattern.horizontal_edges)):
+        k = np.nonzero(meas & (d == dd))[0]
+        v, gx, gy = _field_at(f, x[k], y[k])
+        c = result.coord[result.line[k]]
+        dist[k] = (v - c) / np.maximum(np.hypot(gx, gy), 1e-12)
+        ne = _nearest_edge(edges, v)
+        correct[k] = (ne // 2 == result.point_band[k]) & (ne % 2 == result.point_edge[k])
+    m = meas
+    ok = m & correct
+    out["measured"] = float(m.sum())
+    out["label_rate"] = float(correct[m].mean()) if m.any() else float("nan")
+    out["rms_px"] = float(np.sqrt(np.mean(dist[ok] ** 2))) if ok.any() else float("nan")
+    out["median_abs_px"] = float(np.median(np.abs(dist[ok]))) if ok.any() else float("nan")
+    out["p95_abs_px"] = float(np.percentile(np.abs(dist[ok]), 95)) if ok.any() else float("nan")
+    # wrong lines: most measured points wrong; length = arc length of the polyline
+    nl = result.nlines
+    if nl:
+        wrong = np.bincount(result.line[m & ~correct], minlength=nl)
+        tot = np.bincount(result.line[m], minlength=nl)
+        seg = np.hypot(np.diff(x), np.diff(y))
+        same = result.line[1:] == result.line[:-1]
+        length = np.bincount(result.line[1:][same], weights=seg[same], minlength=nl)
+        out["wrong_lines"] = float(np.sum(wrong > 0.5 * np.maximum(tot, 1)))
+        out["wrong_lines_over_20px"] = float(np.sum((wrong > 0.5 * np.maximum(tot, 1))
+                                                    & (length > 20)))
+    else:
+        out["wrong_lines"] = out["wrong_lines_over_20px"] = 0.0
+    # --- coverage of the true visible edges
+    from scipy.spatial import cKDTree
+
+    span = max(w, h) + 10
+    fam_det = result.point_direction * 100000 + result.point_band * 2 + result.point_edge
+    total = found = 0
+    for dd, f, edges, other, oname in ((0, fx0, pattern.vertical_edges, fy0, "horizontal"),
+                                       (1, fy0, pattern.horizontal_edges, fx0, "vertical")):
+        ff = f if dd == 0 else f.T
+        oo = other if dd == 0 else other.T
+        cc = (cells if dd == 0 else cells.T)
+        ok_pair = cc.copy()  # pair (i, i+1) along the row inside one good cell row
+        ok_pair[:, :] = cc
+        flat = np.sort(edges.reshape(-1))
+        e0 = np.searchsorted(flat, ff[:, :-1])
+        e1 = np.searchsorted(flat, ff[:, 1:])
+        cross = ok_pair[:, :-1] & (np.abs(e0 - e1) == 1)
+        r, c = np.nonzero(cross)
+        ce = flat[np.minimum(e0[r, c], e1[r, c])]
+        a, b = ff[r, c], ff[r, c + 1]
+        sub = c + (ce - a) / (b - a)
+        # visible: the other coordinate outside every band of the other direction
+        ov = oo[r, c] + (oo[r, c + 1] - oo[r, c]) * (sub - c)
+        vis = pattern.stripe_field(ov, oname) < 0
+        r, sub, ce = r[vis], sub[vis], ce[vis]
+        # which (band, edge) is ce
+        bi = _nearest_edge(edges, ce)
+        fam = dd * 100000 + (bi // 2) * 2 + bi % 2
+        total += len(r)
+        if not len(r):
+            continue
+        px_, py_ = (sub, r.astype(np.float64)) if dd == 0 else (r.astype(np.float64), sub)
+        k = result.point_direction == dd
+        if not k.any():
+            continue
+        det = np.c_[result.x[k] + fam_det[k] * span, result.y[k]]
+        q = np.c_[px_ + fam * span, py_]
+        dist_q, _ = cKDTree(det).query(q, distance_upper_bound=match_radius)
+        found += int(np.sum(np.isfinite(dist_q)))
+    out["true"] = float(total)
+    out["coverage"] = float(found / total) if total else float("nan")
+    # --- intersections
+    n = len(result.cam)
+    out["intersections"] = float(n)
+    if n:
+        cx, cy = result.cam[:, 0], result.cam[:, 1]
+        xi = np.clip(np.floor(cx).astype(np.int64), 0, w - 1)
+        yi = np.clip(np.floor(cy).astype(np.int64), 0, h - 1)
+        good = cells[yi, xi]
+        vx, gxx, gxy = _field_at(fx0, cx, cy)
+        vy, gyx, gyy = _field_at(fy0, cx, cy)
+        jac = np.stack([np.c_[gxx, gxy], np.c_[gyx, gyy]], 1)
+        res = np.c_[result.proj[:, 0] - vx, result.proj[:, 1] - vy]
+        with np.errstate(all="ignore"):
+            delta = np.linalg.solve(jac[good] + 1e-12 * np.eye(2), res[good][..., None])[..., 0]
+        e = np.hypot(delta[:, 0], delta[:, 1])
+        e = e[np.isfinite(e)]
+        out["intersection_rms_px"] = float(np.sqrt(np.mean(e**2))) if len(e) else float("nan")
+        out["intersection_p95_px"] = float(np.percentile(e, 95)) if len(e) else float("nan")
+    else:
+        out["intersection_rms_px"] = out["intersection_p95_px"] = float("nan")
+    return out

@@ -1,0 +1,157 @@
+"""Colour and albedo normalisation of a grid photograph (method.md section 2, first step).
+
+The camera sees ``I_c = a(x) * s(x) * sum_k M_ck P_k(x) + b_c`` per channel c: projector primaries
+P_k in {0, 1}, a 3x3 crosstalk mix M, surface albedo and shading ``a s`` and ambient b. Two
+normalisations give an image whose lit bands are near 1 and whose black gaps are near 0:
+
+* with a white-light image ``W`` (every primary on): ``N = (I - dark) / max(W - dark, floor)``
+  per channel, which cancels albedo, shading and the row sums of M;
+* without it: local background ``bg`` (a grey-level minimum filter, smoothed) and local envelope
+  ``env`` (a maximum filter of the brightest channel, smoothed) give
+  ``N = (I - bg) / max(env - bg, floor)``.
+
+The edge signal is the sum of the normalised channels (:func:`edge_signal`), which keeps each
+band's edge profile undisturbed where it meets a band of the other direction. The large-scale
+fields (dark level, envelope) are computed at a quarter of the resolution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..errors import NurbscanError
+
+
+def smooth_field(a: np.ndarray, sigma: float, op: str | None = None, size: int = 1
+                 ) -> np.ndarray:
+    """A smooth background field of ``a`` (H, W): optional grey erosion / dilation by a
+    ``size`` x ``size`` square (``op`` "min" / "max"), then a Gaussian of ``sigma`` px.
+
+    Computed at a quarter of the resolution (area-averaged) and enlarged bilinearly, which is
+    exact enough for fields that vary over tens of pixels and 16x cheaper.
+    """
+    h, w = a.shape
+    f = 4 if min(h, w) >= 256 else 1
+    small = cv2.resize(a, (max(w // f, 1), max(h // f, 1)), interpolation=cv2.INTER_AREA) \
+        if f > 1 else a
+    k = max(int(round(size / f)) | 1, 1)
+    if op == "min":
+        small = cv2.erode(small, np.ones((k, k), np.uint8))
+    elif op == "max":
+        small = cv2.dilate(small, np.ones((k, k), np.uint8))
+    small = cv2.GaussianBlur(small, (0, 0), max(sigma / f, 0.5), borderType=cv2.BORDER_REFLECT)
+    if f == 1:
+        return small
+    return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+
+
+def channel_min(img: np.ndarray) -> np.ndarray:
+    """Per-pixel minimum over the 3 channels, (H, W) float32."""
+    return np.minimum(np.minimum(img[..., 0], img[..., 1]), img[..., 2])
+
+
+def channel_max(img: np.ndarray) -> np.ndarray:
+    """Per-pixel maximum over the 3 channels, (H, W) float32."""
+    return np.maximum(np.maximum(img[..., 0], img[..., 1]), img[..., 2])
+
+
+@dataclass(frozen=True)
+class Normalised:
+    """A normalised grid image (module notes), kept in a form that is cheap for 7 MP images.
+
+    Attributes
+    ----------
+    signal : ndarray (H, W) float32
+        Edge signal: the sum over channels of the normalised image (:func:`edge_signal`).
+    valid : ndarray (H, W) bool
+        Pixels whose denominator is above the floor (lit by the projector).
+    channels : tuple of 3 ndarray (H, W) float32
+        The linear image's channels minus the dark level.
+    inverse : tuple of 3 ndarray (H, W) float32, or one (H, W) array
+        1 / denominator per channel (white image) or common to all channels (envelope).
+    """
+
+    signal: np.ndarray
+    valid: np.ndarray
+    channels: tuple
+    inverse: tuple
+
+    def colour_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Normalised colour (N, 3) at points (x, y) px (bilinear)."""
+        from .decode import bilinear
+
+        inv = self.inverse if len(self.inverse) == 3 else self.inverse * 3
+        return np.stack([bilinear(c, x, y) * bilinear(i, x, y)
+                         for c, i in zip(self.channels, inv, strict=True)], axis=1)
+
+    def image(self) -> np.ndarray:
+        """The full normalised image (H, W, 3) float32 (for inspection; not used inside)."""
+        inv = self.inverse if len(self.inverse) == 3 else self.inverse * 3
+        return np.stack([c * i for c, i in zip(self.channels, inv, strict=True)], axis=2)
+
+
+def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 31,
+              floor: float = 0.03) -> Normalised:
+    """Normalise a (linear) grid image for albedo, shading and illumination.
+
+    Parameters
+    ----------
+    image : ndarray (H, W, 3), float32, linear in the light
+        The photograph of the object under the grid.
+    white : ndarray (H, W, 3), optional
+        The same view under full white light; must have the image's shape.
+    window : int
+        Side of the local minimum / maximum filters (dark level, and the envelope when there is
+        no white image), camera px (about two band pitches).
+    floor : float
+        Smallest denominator (fraction of full scale): darker pixels count as unlit.
+
+    Returns
+    -------
+    Normalised
+        The edge signal, the valid mask and what is needed to read colours at points.
+    """
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise NurbscanError(f"image: expected an (H, W, 3) colour image, got shape {img.shape}")
+    chans = cv2.split(img)
+    # dark level: local minimum of the grid image (ambient light in the black gaps)
+    dark = smooth_field(channel_min(img), window / 3, "min", window)
+    chans = tuple(cv2.subtract(c, dark) for c in chans)
+    if white is not None:
+        wht = np.asarray(white, dtype=np.float32)
+        if wht.shape != img.shape:
+            raise NurbscanError(
+                f"white image: size {wht.shape[1]}x{wht.shape[0]} does not match the grid "
+                f"image's {img.shape[1]}x{img.shape[0]}"
+            )
+        wc = cv2.split(cv2.GaussianBlur(wht, (0, 0), 0.7))
+        dens = [cv2.subtract(c, dark) for c in wc]
+        valid = np.maximum(np.maximum(dens[0], dens[1]), dens[2]) > floor
+        inv = tuple(1.0 / np.maximum(d, floor) for d in dens)
+    else:
+        env = smooth_field(channel_max(img), window / 3, "max", window)
+        den = env - dark
+        valid = den > floor
+        inv = (1.0 / np.maximum(den, floor),)
+    inv3 = inv if len(inv) == 3 else inv * 3
+    signal = chans[0] * inv3[0]
+    signal += chans[1] * inv3[1]
+    signal += chans[2] * inv3[2]
+    return Normalised(signal=signal.astype(np.float32, copy=False), valid=valid,
+                      channels=chans, inverse=inv)
+
+
+def edge_signal(norm: np.ndarray) -> np.ndarray:
+    """The sum of the normalised channels, float32 (H, W).
+
+    Where a vertical band (colour v, 0/1 per channel) meets a horizontal band of colour h, the
+    light of each channel is ``V_c + H_c - V_c H_c`` (the crossing rule, for 0/1 channels), so
+    along a row at a fixed height ``sum_c N_c = const + V(x) sum_c v_c (1 - H_c)``: the row
+    derivative of the sum is the vertical band's profile times a constant, and its edges are
+    not displaced by the crossing band (likewise for columns).
+    """
+    return np.ascontiguousarray(norm[..., 0] + norm[..., 1] + norm[..., 2], dtype=np.float32)
