@@ -1,8 +1,55 @@
 """``nurbscan reconstruct``: build 3-D NURBS curves and surfaces from a scan."""
 
-from ._todo import register_todo
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
 
 
 def register(sub) -> None:
     """Add the ``reconstruct`` sub-command."""
-    register_todo(sub, "reconstruct", "Build 3-D NURBS curves and surfaces from a scan", 7)
+    p = sub.add_parser(
+        "reconstruct", help="build 3-D NURBS curves and surfaces from a scan",
+        description=(
+            "Detect the grid in every view of a scan folder, triangulate its labelled edge "
+            "lines with the calibrated rig, build the curve network, skins and Gordon "
+            "surfaces, merge the views in the turntable frame and write the model folder "
+            "(model.json, points.npz, model.png; docs/model-format.md). Never reads truth/."))
+    p.add_argument("scan", type=Path, help="scan folder (with scan.json)")
+    p.add_argument("--calib", type=Path, required=True,
+                   help="calibrated rig (calib.json from 'nurbscan calibrate')")
+    p.add_argument("-o", "--output", type=Path, default=Path("model"),
+                   help="model folder (model/)")
+    p.add_argument("--views", type=int, nargs="+", default=None,
+                   help="only these view indices (default all)")
+    p.add_argument("--min-curves", type=int, default=3,
+                   help="smallest Gordon patch, curves per direction (3)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Reconstruct ``args.scan`` with the rig ``args.calib`` into ``args.output``."""
+    from ..camera import load_rig
+    from ..errors import NurbscanError
+    from ..reconstruct import reconstruct_scan
+
+    if args.min_curves < 2:
+        raise NurbscanError(f"--min-curves {args.min_curves}: must be at least 2")
+    t0 = time.perf_counter()
+    rig = load_rig(args.calib)
+
+    def say(msg: str) -> None:
+        if not args.quiet:
+            print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    model = reconstruct_scan(args.scan, rig, progress=say, views=args.views,
+                             min_curves=args.min_curves)
+    model.meta["calibration"] = str(args.calib)
+    path = model.save(args.output)
+    n = {k: v for k, v in model.to_dict()["counts"].items()}
+    print(f"wrote {path}: {n['gordon']} Gordon patches, "
+          f"{n['horizontal_line'] + n['vertical_line']} curves, {len(model.points)} points")
+    return 0

@@ -1,0 +1,178 @@
+"""The model folder: ``model.json`` (index, curves, surfaces), ``points.npz``, ``model.png``.
+
+The format is specified in docs/model-format.md. Everything is in the object (turntable)
+frame, mm. Every file is written atomically (:mod:`nurbscan.io.atomic`).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ..errors import NurbscanError
+from ..io import write_json
+from ..io.atomic import atomic_path, read_json
+from ..nurbs import NurbsCurve, NurbsSurface
+
+TYPE = "nurbscan.model"
+VERSION = 1
+CURVE_KINDS = ("horizontal_line", "vertical_line")
+SURFACE_KINDS = ("horizontal_skin", "vertical_skin", "gordon")
+
+
+@dataclass
+class Model:
+    """A reconstructed object: curves and surfaces of every view in the object frame.
+
+    Attributes
+    ----------
+    curves : list of dict
+        ``{"kind", "view", "direction", "band", "edge", "coord", "curve": NurbsCurve}``.
+    surfaces : list of dict
+        ``{"kind", "view", "patch", "vertical": (c0, c1), "horizontal": (c0, c1),
+        "n_curves": (I, J), "surface": NurbsSurface}``.
+    views : list of dict
+        Per view: ``index``, ``table_angle`` (rad), counts and times.
+    points, normals : ndarray (N, 3)
+        Merged point cloud sampled on the Gordon patches, with unit normals (towards the camera
+        of the view the patch comes from), mm.
+    point_view : ndarray (N,) int
+        View of each point.
+    edge_points : ndarray (M, 3)
+        Triangulated edge points of the network lines, mm; ``edge_view`` (M,) their views.
+    meta : dict
+        Anything else (light-surface check, settings, source).
+    """
+
+    curves: list = field(default_factory=list)
+    surfaces: list = field(default_factory=list)
+    views: list = field(default_factory=list)
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    point_view: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    edge_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    edge_view: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    meta: dict = field(default_factory=dict)
+
+    def surfaces_of(self, kind: str) -> list:
+        """Surface entries of one kind."""
+        return [s for s in self.surfaces if s["kind"] == kind]
+
+    def curves_of(self, kind: str) -> list:
+        """Curve entries of one kind."""
+        return [c for c in self.curves if c["kind"] == kind]
+
+    # ------------------------------------------------------------------ JSON
+    def to_dict(self) -> dict[str, Any]:
+        """The ``model.json`` document (without the point arrays)."""
+        curves = [{**{k: v for k, v in c.items() if k != "curve"},
+                   "curve": c["curve"].to_dict()} for c in self.curves]
+        surfaces = [{**{k: (list(v) if isinstance(v, tuple) else v) for k, v in s.items()
+                        if k != "surface"}, "surface": s["surface"].to_dict()}
+                    for s in self.surfaces]
+        counts = {k: len(self.curves_of(k)) for k in CURVE_KINDS}
+        counts.update({k: len(self.surfaces_of(k)) for k in SURFACE_KINDS})
+        return {"type": TYPE, "version": VERSION, "frame": "object", "units": "mm",
+                "counts": counts, "views": self.views, "meta": self.meta,
+                "points": "points.npz", "picture": "model.png",
+                "curves": curves, "surfaces": surfaces}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], source: str = "model") -> Model:
+        """Inverse of :meth:`to_dict` (the point arrays are left empty)."""
+        if not isinstance(d, Mapping) or d.get("type") != TYPE:
+            raise NurbscanError(f"{source}: not a nurbscan model (type {TYPE!r})")
+        try:
+            curves = [{**c, "curve": NurbsCurve.from_dict(c["curve"])} for c in d["curves"]]
+            surfaces = [{**s, "surface": NurbsSurface.from_dict(s["surface"])}
+                        for s in d["surfaces"]]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise NurbscanError(f"{source}: malformed model ({exc})") from None
+        for c in curves:
+            if c.get("kind") not in CURVE_KINDS:
+                raise NurbscanError(f"{source}: unknown curve kind {c.get('kind')!r}")
+        for s in surfaces:
+            if s.get("kind") not in SURFACE_KINDS:
+                raise NurbscanError(f"{source}: unknown surface kind {s.get('kind')!r}")
+        return cls(curves=curves, surfaces=surfaces, views=list(d.get("views", [])),
+                   meta=dict(d.get("meta", {})))
+
+    # ------------------------------------------------------------------ folder
+    def save(self, folder: str | os.PathLike) -> Path:
+        """Write ``model.json``, ``points.npz`` and ``model.png`` into ``folder``."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        buf = io.BytesIO()
+        np.savez_compressed(buf, points=self.points, normals=self.normals,
+                            point_view=self.point_view, edge_points=self.edge_points,
+                            edge_view=self.edge_view)
+        with atomic_path(folder / "points.npz") as tmp:
+            tmp.write_bytes(buf.getvalue())
+        img = render_picture(self.points, self.normals)
+        ok, png = cv2.imencode(".png", img)
+        if ok:
+            with atomic_path(folder / "model.png") as tmp:
+                tmp.write_bytes(png.tobytes())
+        return write_json(folder / "model.json", self.to_dict(), indent=None)
+
+
+def load_model(folder: str | os.PathLike) -> Model:
+    """Read a model folder (``model.json`` and, if present, ``points.npz``)."""
+    folder = Path(folder)
+    path = folder / "model.json" if folder.is_dir() else folder
+    if not path.exists():
+        raise NurbscanError(f"{path}: model not found (expected a folder with model.json)")
+    m = Model.from_dict(read_json(path), source=str(path))
+    pts = path.parent / "points.npz"
+    if pts.exists():
+        with np.load(pts) as z:
+            m.points, m.normals = z["points"], z["normals"]
+            m.point_view = z["point_view"]
+            m.edge_points, m.edge_view = z["edge_points"], z["edge_view"]
+    return m
+
+
+def render_picture(points: np.ndarray, normals: np.ndarray, size: int = 480) -> np.ndarray:
+    """Three orthographic, Lambert-shaded views (front, side, top) of a point cloud, BGR uint8.
+
+    Each point is splatted as a 3 x 3 px square; a z-buffer is emulated by drawing in order of
+    decreasing depth (the nearest point is drawn last).
+    """
+    out = np.full((size, 3 * size, 3), 255, np.uint8)
+    if len(points) == 0:
+        return out
+    P = np.asarray(points, float)
+    N = np.asarray(normals, float)
+    lo, hi = P.min(0), P.max(0)
+    c = 0.5 * (lo + hi)
+    scale = 0.9 * size / max(float(np.max(hi - lo)), 1e-9)
+    # (right, up, towards the viewer) axes of each view in the object frame (z up)
+    views = [(np.array([0, 1, 0.]), np.array([0, 0, 1.]), np.array([1, 0, 0.])),
+             (np.array([-1, 0, 0.]), np.array([0, 0, 1.]), np.array([0, 1, 0.])),
+             (np.array([0, 1, 0.]), np.array([-1, 0, 0.]), np.array([0, 0, 1.]))]
+    light = np.array([0.3, 0.3, 1.0])
+    for k, (r, u, t) in enumerate(views):
+        Q = P - c
+        x = (Q @ r) * scale + size / 2
+        y = -(Q @ u) * scale + size / 2
+        z = Q @ t
+        lv = 0.6 * t + 0.4 * (light[0] * r + light[1] * u)
+        lv /= np.linalg.norm(lv)
+        shade = np.abs(N @ lv)
+        order = np.argsort(z)
+        xi = np.clip(np.round(x[order]).astype(int), 1, size - 2)
+        yi = np.clip(np.round(y[order]).astype(int), 1, size - 2)
+        g = (40 + 215 * shade[order]).astype(np.uint8)
+        col = np.stack([g, g, (g * 0.9).astype(np.uint8)], 1)
+        panel = out[:, k * size:(k + 1) * size]
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                panel[yi + dy, xi + dx] = col
+    return out

@@ -1,0 +1,447 @@
+"""The curve network of a view, its skins and its Gordon surfaces (method.md section 5, step 4).
+
+Every 3-D curve of a view is parametrised by a projector coordinate
+(:mod:`nurbscan.reconstruct.triangulate`): a curve on the vertical edge ``x = c_i`` by the
+projector ``y``, a curve on the horizontal edge ``y = c_j`` by the projector ``x``. The two
+families therefore meet on the common parameter grid ``(c_i, c_j)``: the crossing of vertical
+``i`` and horizontal ``j`` is at ``v = c_j`` on the first and ``u = c_i`` on the second. That is
+exactly what a Gordon surface needs (Gordon 1969; Piegl and Tiller section 10.5), without any
+reparametrisation.
+
+A *cell* ``(i, j)`` of the network is complete when both vertical curves ``i, i + 1`` cover
+``[c_j, c_j+1]`` and both horizontal curves ``j, j + 1`` cover ``[c_i, c_i+1]`` without a gap, and
+the two curves agree at the four crossings (within ``crossing_tol`` mm). Shadows, occlusion and
+silhouettes leave incomplete cells; the complete ones are split into rectangles of consecutive
+lines, largest first (:func:`rectangles`), each at least ``min_curves`` x ``min_curves``.
+The same crossing test validates the line curves (:func:`line_curves`).
+
+For one rectangle with vertical parameters ``c_i0 .. c_i1`` (``I`` curves) and horizontal ones
+``c_j0 .. c_j1`` (``J`` curves), with ``Ku`` the averaging knots (eq. 9.8) of degree
+``p = min(3, I - 1)`` over the ``c_i`` and ``Kv`` likewise over the ``c_j``:
+
+* each horizontal curve segment (its line's 3-D curve, resampled densely on ``[c_i0, c_i1]``) is
+  re-approximated by least squares in ``u`` on ``Ku``, each vertical one in ``v`` on ``Kv``;
+* the grid points ``X_ij`` are the means of the two curves' points at the crossing;
+* the horizontal skin ``L1`` interpolates the horizontal curves at ``v = c_j`` (skinning,
+  section 10.3), the vertical skin ``L2`` the vertical curves at ``u = c_i``, and ``T`` is the
+  tensor-product interpolant of the ``X_ij`` (section 9.2.5);
+* all three share the knots ``Ku x Kv``, so the Gordon surface ``G = L1 + L2 - T`` is the sum of
+  their control nets.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..nurbs import NurbsCurve, NurbsSurface
+from ..nurbs.basis import averaging_knots, basis_matrix
+from ._batch import fit_chains, pair_quadratic_rms, uniform_knots01
+from .triangulate import Line3D, lstsq_spline
+
+
+@dataclass
+class NetLine:
+    """All samples of one projector edge in a view (chains of the same edge merged)."""
+
+    direction: str
+    coord: float
+    band: int
+    edge: int
+    w: np.ndarray  # (m,) sorted, projector px
+    points: np.ndarray  # (m, 3) mm
+    starts: np.ndarray  # (k,) covered intervals of w
+    ends: np.ndarray  # (k,)
+    curves: list  # 3-D curve of each covered interval (NurbsCurve or None)
+    crossings: np.ndarray | None = None  # (k,) agreeing crossings of each interval
+    validated: list | None = None  # (lo, hi, interval) runs between agreeing crossings
+
+
+def _split_chains(lines: list[Line3D], gap: float, jump: float, trim: int = 0):
+    """All chains' samples, split where ``w`` jumps by more than ``gap`` px or the 3-D step
+    exceeds ``jump`` mm plus 1.5 times the chain's mean slope (mm/px) times the ``w`` step.
+
+    Returns
+    -------
+    w, P : ndarray (N,), (N, 3)
+        Samples grouped by piece, sorted by ``w`` within each.
+    piece_lo, piece_hi : ndarray (K,)
+        Index range of each piece.
+    piece_line : ndarray (K,)
+        Index into ``lines`` of each piece's chain.
+    """
+    ws, ps, ids = [], [], []
+    for k, ln in enumerate(lines):
+        m = len(ln.w) - 2 * trim
+        if m >= 2:
+            ws.append(ln.w[trim:trim + m])
+            ps.append(ln.points[trim:trim + m])
+            ids.append(np.full(m, k))
+    if not ws:
+        z = np.zeros(0, int)
+        return np.zeros(0), np.zeros((0, 3)), z, z, z
+    w, P, cid = np.concatenate(ws), np.concatenate(ps), np.concatenate(ids)
+    dw = np.diff(w)
+    dp = np.linalg.norm(np.diff(P, axis=0), axis=1)
+    same = cid[1:] == cid[:-1]
+    num = np.bincount(cid[1:][same], dp[same], len(lines))
+    den = np.bincount(cid[1:][same], dw[same], len(lines))
+    slope = (num / np.maximum(den, 1e-9))[cid[1:]]
+    cut = ~same | (dw > gap) | (dp > jump + 1.5 * slope * dw)
+    lo = np.r_[0, np.nonzero(cut)[0] + 1]
+    hi = np.r_[lo[1:], len(w)]
+    return w, P, lo, hi, cid[lo]
+
+
+def build_lines(lines: list[Line3D], gap: float = 13.0, jump: float = 0.3,
+                knot_spacing: float = 16.0, min_points: int = 8, trim: int = 0
+                ) -> tuple[list, list]:
+    """Join a view's chains per projector edge into covered intervals with 3-D curves.
+
+    Chains are split at gaps and depth steps; the pieces of one edge, sorted by their first
+    ``w``, are joined when the next starts after the current one's end (an overlap of at most
+    0.5 px) within ``gap`` px and one quadratic in ``w`` fits the ends of both within ``jump`` mm
+    RMS (:func:`nurbscan.reconstruct._batch.pair_quadratic_rms`: a depth step or a mislabelled
+    chain fails it). Of two overlapping intervals (one of them mislabelled) the one with fewer
+    samples is dropped. Each interval gets a least-squares cubic curve over ``w`` with uniform
+    knots ``knot_spacing`` px apart and one pass of outlier removal (3 robust sigmas, at least
+    0.05 mm), all intervals fitted together (:func:`nurbscan.reconstruct._batch.fit_chains`).
+
+    Parameters
+    ----------
+    gap : float
+        Largest gap in the projector parameter bridged inside an interval, projector px (an
+        edge is lost where it crosses a band of the other direction: about the band width).
+    jump : float
+        Largest RMS residual of a join (a quadratic through both pieces' ends), mm.
+    knot_spacing : float
+        Knot spacing of an interval's 3-D curve, projector px.
+    min_points : int
+        Intervals with fewer samples are dropped.
+    trim : int
+        Samples dropped at both ends of every chain.
+
+    Returns
+    -------
+    (vertical, horizontal) : lists of NetLine sorted by coordinate
+    """
+    w, P, lo, hi, pl = _split_chains(lines, gap, jump, trim)
+    if len(lo) == 0:
+        return [], []
+    # edge key of each piece; order pieces by edge, then by first w
+    keys = {}
+    ek = np.array([keys.setdefault((lines[i].direction, round(lines[i].coord, 6)), len(keys))
+                   for i in pl])
+    o = np.lexsort((w[lo], ek))
+    lo, hi, pl, ek = lo[o], hi[o], pl[o], ek[o]
+    same = ek[1:] == ek[:-1]
+    g = w[lo[1:]] - w[hi[:-1] - 1]
+    cand = np.nonzero(same & (g >= -0.5) & (g <= gap))[0]
+    join = np.zeros(len(lo) - 1, bool)
+    rms = pair_quadratic_rms(w, P, lo[cand], hi[cand], lo[cand + 1], hi[cand + 1])
+    join[cand] = rms <= jump
+    # intervals: runs of joined pieces
+    starts = np.r_[0, np.nonzero(~join)[0] + 1]
+    ends = np.r_[starts[1:], len(lo)]
+    iv = []  # (edge key, line index, sample indices)
+    for a, b in zip(starts, ends, strict=True):
+        idx = np.concatenate([np.arange(lo[k], hi[k]) for k in range(a, b)])
+        iv.append((int(ek[a]), int(pl[a]), idx))
+    # drop the smaller of overlapping intervals of one edge
+    by_edge: dict = {}
+    for e, li, idx in iv:
+        by_edge.setdefault(e, []).append((li, idx))
+    kept = []
+    for e, lst in by_edge.items():
+        lst.sort(key=lambda t: -len(t[1]))
+        mine: list = []
+        for li, idx in lst:
+            a0, a1 = w[idx[0]], w[idx[-1]]
+            if len(idx) >= min_points and a1 > a0 and all(
+                    a1 < w[j[0]] or a0 > w[j[-1]] for _, j in mine):
+                mine.append((li, idx))
+        mine.sort(key=lambda t: w[t[1][0]])
+        kept += [(e, li, idx) for li, idx in mine]
+    if not kept:
+        return [], []
+    # one batched robust fit of all intervals
+    cidx = np.concatenate([np.full(len(idx), k) for k, (_, _, idx) in enumerate(kept)])
+    allidx = np.concatenate([idx for _, _, idx in kept])
+    ww, PP = w[allidx], P[allidx]
+    w0 = np.array([w[idx[0]] for _, _, idx in kept])
+    w1 = np.array([w[idx[-1]] for _, _, idx in kept])
+    cnt = np.array([len(idx) for _, _, idx in kept])
+    nsp = np.maximum(1, np.minimum(np.ceil((w1 - w0) / knot_spacing), np.maximum(cnt - 4, 1)))
+    nsp = nsp.astype(int)
+    t = (ww - w0[cidx]) / (w1 - w0)[cidx]
+    ctrl, _, _ = fit_chains(t, PP, cidx, nsp, smooth=1e-6, robust=0.05)
+    fam: dict = {"vertical": [], "horizontal": []}
+    groups: dict = {}
+    for k, (e, li, idx) in enumerate(kept):
+        groups.setdefault(e, []).append((k, li, idx))
+    for lst in groups.values():
+        ln0 = lines[lst[0][1]]
+        curves = [NurbsCurve(3, w0[k] + (w1[k] - w0[k]) * uniform_knots01(int(nsp[k])),
+                             ctrl[k]) for k, _, _ in lst]
+        sel = np.concatenate([idx for _, _, idx in lst])
+        fam[ln0.direction].append(NetLine(
+            ln0.direction, float(ln0.coord), ln0.band, ln0.edge, w[sel], P[sel],
+            np.array([w0[k] for k, _, _ in lst]), np.array([w1[k] for k, _, _ in lst]),
+            curves))
+    for k in fam:
+        fam[k].sort(key=lambda n: n.coord)
+    return fam["vertical"], fam["horizontal"]
+
+
+def _covers(line: NetLine, a: np.ndarray, b: np.ndarray, margin: float) -> np.ndarray:
+    """Index of the interval of ``line`` covering [a - margin, b + margin] (arrays), or -1."""
+    if len(line.starts) == 0:
+        return np.full(a.shape, -1)
+    k = np.searchsorted(line.starts, a - margin, side="right") - 1
+    kk = np.clip(k, 0, len(line.starts) - 1)
+    ok = (k >= 0) & (line.ends[kk] >= b + margin)
+    return np.where(ok, kk, -1)
+
+
+def _crossings(lines: list[NetLine], params: np.ndarray, margin: float):
+    """Points (n_lines, n_params, 3) of each line's curves at the other family's params."""
+    out = np.full((len(lines), len(params), 3), np.nan)
+    seg = np.full((len(lines), len(params)), -1)
+    for i, ln in enumerate(lines):
+        k = _covers(ln, params, params, margin)
+        seg[i] = k
+        for s in np.unique(k[k >= 0]):
+            sel = k == s
+            c = ln.curves[s]
+            lo, hi = c.domain
+            out[i, sel] = c.evaluate(np.clip(params[sel], lo, hi))
+    return out, seg
+
+
+def complete_cells(vlines: list[NetLine], hlines: list[NetLine], crossing_tol: float = 0.07,
+                   margin: float = 1.0):
+    """Mask of complete cells (nV - 1, nH - 1) and the crossing points (nV, nH, 3), mm.
+
+    The crossing point is the mean of the vertical and the horizontal curve's points. Also sets
+    each line's ``crossings``: the number of agreeing crossings of each of its intervals (a
+    mislabelled edge line meets the other family nowhere within ``crossing_tol``).
+    """
+    cv = np.array([ln.coord for ln in vlines])
+    ch = np.array([ln.coord for ln in hlines])
+    nv, nh = len(cv), len(ch)
+    if nv < 2 or nh < 2:
+        return np.zeros((max(nv - 1, 0), max(nh - 1, 0)), bool), np.zeros((nv, nh, 3))
+    Xv, segv = _crossings(vlines, ch, margin)  # vertical i at v = c_j
+    Xh, segh = _crossings(hlines, cv, margin)  # horizontal j at u = c_i
+    Xh = Xh.transpose(1, 0, 2)
+    segh = segh.T
+    agree = np.linalg.norm(Xv - Xh, axis=2) < crossing_tol
+    X = 0.5 * (Xv + Xh)
+    # a cell's four sides must lie in one covered interval of their line
+    same_v = (segv[:, :-1] >= 0) & (segv[:, :-1] == segv[:, 1:])  # (nv, nh-1)
+    same_h = (segh[:-1, :] >= 0) & (segh[:-1, :] == segh[1:, :])  # (nv-1, nh)
+    ok = agree[:-1, :-1] & agree[1:, :-1] & agree[:-1, 1:] & agree[1:, 1:]
+    ok &= same_v[:-1, :] & same_v[1:, :] & same_h[:, :-1] & same_h[:, 1:]
+    good = agree & (segv >= 0) & (segh >= 0)
+    for i, ln in enumerate(vlines):
+        ln.crossings = np.bincount(segv[i][good[i]], minlength=len(ln.starts))
+        ln.validated = _validated_runs(ch, segv[i], good[i])
+    for j, ln in enumerate(hlines):
+        ln.crossings = np.bincount(segh[:, j][good[:, j]], minlength=len(ln.starts))
+        ln.validated = _validated_runs(cv, segh[:, j], good[:, j])
+    return ok, X
+
+
+def _validated_runs(params: np.ndarray, seg: np.ndarray, good: np.ndarray) -> list:
+    """Runs of consecutive crossings of one line that all agree, inside one interval.
+
+    Returns ``(lo, hi, interval)`` parameter ranges spanning at least two crossings.
+    """
+    runs = []
+    n = len(params)
+    i = 0
+    while i < n:
+        if not good[i]:
+            i += 1
+            continue
+        j = i
+        while j + 1 < n and good[j + 1] and seg[j + 1] == seg[i]:
+            j += 1
+        if j > i:
+            runs.append((float(params[i]), float(params[j]), int(seg[i])))
+        i = j + 1
+    return runs
+
+
+def _largest(mask: np.ndarray, min_r: int, min_c: int):
+    """Largest all-true rectangle with at least min_r rows and min_c columns (histogram/stack).
+
+    Returns (r0, r1, c0, c1) half-open, or None.
+    """
+    R, C = mask.shape
+    h = np.zeros(C, int)
+    best, arg = 0, None
+    for r in range(R):
+        h = np.where(mask[r], h + 1, 0)
+        if h.max(initial=0) < min_r:
+            continue
+        stack: list = []
+        hh = list(h) + [0]
+        for c in range(C + 1):
+            start = c
+            while stack and stack[-1][1] >= hh[c]:
+                s, height = stack.pop()
+                width = c - s
+                if height >= min_r and width >= min_c and height * width > best:
+                    best, arg = height * width, (r - height + 1, r + 1, s, c)
+                start = s
+            stack.append((start, hh[c]))
+    return arg
+
+
+def rectangles(mask: np.ndarray, min_cells: int = 2) -> list[tuple[int, int, int, int]]:
+    """Split complete cells into rectangles, largest first (greedy maximal rectangles).
+
+    Returns list of (i0, i1, j0, j1): cells i0 .. i1 - 1 by j0 .. j1 - 1, so the patch uses
+    vertical curves i0 .. i1 and horizontal curves j0 .. j1.
+    """
+    m = mask.copy()
+    out = []
+    while True:
+        r = _largest(m, min_cells, min_cells)
+        if r is None:
+            return out
+        out.append(r)
+        m[r[0]:r[1], r[2]:r[3]] = False
+
+
+@dataclass(frozen=True)
+class Patch:
+    """The surfaces over one rectangle of the network (see the module notes).
+
+    ``vertical`` and ``horizontal`` are the (first, last) projector coordinates of the curves
+    (px), i.e. the parameter domain ``u in [c_i0, c_i1]``, ``v in [c_j0, c_j1]``.
+    """
+
+    index: tuple[int, int, int, int]
+    vertical: tuple[float, float]
+    horizontal: tuple[float, float]
+    n_curves: tuple[int, int]
+    horizontal_skin: NurbsSurface
+    vertical_skin: NurbsSurface
+    gordon: NurbsSurface
+    crossings: np.ndarray  # (I, J, 3)
+
+
+def _resample(ln: NetLine, a: float, b: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` samples of the line's 3-D curve (the interval covering [a, b]) on [a, b]."""
+    k = int(_covers(ln, np.array([a]), np.array([b]), 0.0)[0])
+    if k < 0:  # the cell test guarantees coverage up to its margin: take the nearest interval
+        k = int(np.argmin(np.abs(0.5 * (ln.starts + ln.ends) - 0.5 * (a + b))))
+    c = ln.curves[k]
+    lo, hi = c.domain
+    w = np.linspace(a, b, n)
+    return w, c.evaluate(np.clip(w, lo, hi))
+
+
+def gordon_patch(vlines, hlines, rect, per_span: int = 6) -> Patch:
+    """Skins and Gordon surface of one rectangle ``(i0, i1, j0, j1)`` of cells.
+
+    Each curve segment is re-approximated on the patch's knots from ``per_span`` samples per
+    knot span of its line's 3-D curve (so that gaps in the edge data, e.g. where a band of the
+    other direction crosses, leave no span without data).
+    """
+    i0, i1, j0, j1 = rect
+    V = vlines[i0:i1 + 1]
+    H = hlines[j0:j1 + 1]
+    cu = np.array([ln.coord for ln in V])
+    cv = np.array([ln.coord for ln in H])
+    nI, nJ = len(cu), len(cv)
+    p, q = min(3, nI - 1), min(3, nJ - 1)
+    Ku, Kv = averaging_knots(cu, p), averaging_knots(cv, q)
+    Bu = basis_matrix(cu, p, Ku, nI)
+    Bv = basis_matrix(cv, q, Kv, nJ)
+    Qh = np.empty((nJ, nI, 3))  # control points of horizontal curves (in u)
+    for j, ln in enumerate(H):
+        w, P = _resample(ln, cu[0], cu[-1], per_span * nI)
+        c = lstsq_spline(w, P, Ku, degree=p, smooth=1e-9)
+        Qh[j] = c.control_points
+    Qv = np.empty((nI, nJ, 3))
+    for i, ln in enumerate(V):
+        w, P = _resample(ln, cv[0], cv[-1], per_span * nJ)
+        c = lstsq_spline(w, P, Kv, degree=q, smooth=1e-9)
+        Qv[i] = c.control_points
+    # grid points: mean of the two segment fits at the crossing
+    Xh = np.einsum("ui,jic->ujc", Bu, Qh)  # horizontal j at u = c_i -> (nI, nJ, 3)
+    Xv = np.einsum("vj,ijc->ivc", Bv, Qv)  # vertical i at v = c_j -> (nI, nJ, 3)
+    Xg = 0.5 * (Xh + Xv)
+    # L1: interpolate horizontal control polygons across v at c_j
+    P1 = np.linalg.solve(Bv, Qh.reshape(nJ, -1)).reshape(nJ, nI, 3).transpose(1, 0, 2)
+    # L2: interpolate vertical control polygons across u at c_i
+    P2 = np.linalg.solve(Bu, Qv.reshape(nI, -1)).reshape(nI, nJ, 3)
+    # T: tensor-product interpolation of the grid points
+    PT = np.linalg.solve(Bu, Xg.reshape(nI, -1)).reshape(nI, nJ, 3)
+    PT = np.linalg.solve(Bv, PT.transpose(1, 0, 2).reshape(nJ, -1)).reshape(nJ, nI, 3)
+    PT = PT.transpose(1, 0, 2)
+    L1 = NurbsSurface(p, q, Ku, Kv, P1)
+    L2 = NurbsSurface(p, q, Ku, Kv, P2)
+    G = NurbsSurface(p, q, Ku, Kv, P1 + P2 - PT)
+    return Patch(index=(int(i0), int(i1), int(j0), int(j1)),
+                 vertical=(float(cu[0]), float(cu[-1])),
+                 horizontal=(float(cv[0]), float(cv[-1])), n_curves=(nI, nJ),
+                 horizontal_skin=L1, vertical_skin=L2, gordon=G, crossings=Xg)
+
+
+def _trim(curve: NurbsCurve, lo: float, hi: float) -> NurbsCurve:
+    """The part of a curve on [lo, hi] (knot insertion, A5.1)."""
+    a, b = curve.domain
+    if lo > a:
+        curve = curve.split(lo)[1]
+    if hi < b:
+        curve = curve.split(hi)[0]
+    return curve
+
+
+def line_curves(vlines, hlines) -> list[tuple[str, NetLine, NurbsCurve]]:
+    """The validated parts of the network's 3-D curves: (direction, line, curve).
+
+    A line's curve is kept between consecutive crossings where it agrees with the curves of the
+    other direction (within the crossing tolerance), over runs of at least two such crossings
+    (:func:`complete_cells` finds them): the parts of the edge lines that the network confirms.
+    A mislabelled chain, or a stretch bridged over a depth step, meets the other family
+    nowhere, or disagrees with it, and is left out.
+    """
+    out = []
+    for ln in list(vlines) + list(hlines):
+        for lo, hi, k in ln.validated or []:
+            c = ln.curves[k]
+            a, b = c.domain
+            lo, hi = max(lo, a), min(hi, b)
+            if hi > lo:
+                out.append((ln.direction, ln, _trim(c, lo, hi)))
+    return out
+
+
+def build_network(lines: list[Line3D], min_curves: int = 3, crossing_tol: float = 0.07,
+                  gap: float = 13.0, jump: float = 0.3, knot_spacing: float = 16.0):
+    """Network, complete cells and Gordon patches of one view.
+
+    Returns
+    -------
+    vlines, hlines : list of NetLine
+    patches : list of Patch
+    mask : ndarray bool (nV - 1, nH - 1)
+        Complete cells.
+    """
+    vlines, hlines = build_lines(lines, gap=gap, jump=jump, knot_spacing=knot_spacing)
+    mask, X = complete_cells(vlines, hlines, crossing_tol)
+    patches = []
+    if mask.size:
+        for rect in rectangles(mask, max(min_curves - 1, 1)):
+            patches.append(gordon_patch(vlines, hlines, rect))
+    return vlines, hlines, patches, mask
+
+
+__all__ = ["NetLine", "Patch", "build_lines", "complete_cells", "rectangles", "gordon_patch",
+           "build_network", "line_curves", "NurbsCurve"]

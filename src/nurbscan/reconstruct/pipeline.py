@@ -1,0 +1,162 @@
+"""Whole-object reconstruction of a scan folder (method.md sections 5 and 6).
+
+:func:`reconstruct_scan` reads ``scan.json``, the pattern and each view's grid and white
+photographs (never ``truth/``), detects and decodes the grid (:func:`nurbscan.detect.detect_grid`),
+reconstructs each view in the rig frame (:func:`nurbscan.reconstruct.view.reconstruct_view`),
+moves it into the object frame with the calibrated turntable and the view's table angle, and
+collects everything into one :class:`~nurbscan.reconstruct.model.Model`.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import NurbscanError
+from ..io import read_image
+from ..io.atomic import read_json
+from .light import compare_light_surfaces
+from .merge import curve_to_object, rig_to_object, surface_to_object
+from .model import Model
+from .view import ViewResult, reconstruct_view
+
+
+def _patch_samples(surface, per_span: int = 4):
+    """Grid samples and unit normals of a surface, ``per_span`` per knot span each way."""
+    (u0, u1), (v0, v1) = surface.domain
+    nu = max(2, per_span * (len(np.unique(surface.knots_u)) - 1) + 1)
+    nv = max(2, per_span * (len(np.unique(surface.knots_v)) - 1) + 1)
+    uu, vv = np.meshgrid(np.linspace(u0, u1, nu), np.linspace(v0, v1, nv), indexing="ij")
+    X = surface.evaluate(uu.ravel(), vv.ravel())
+    N = surface.normal(uu.ravel(), vv.ravel())
+    return X, N
+
+
+def add_view(model: Model, res: ViewResult, rig, index: int, angle: float,
+             extra: dict | None = None) -> None:
+    """Move one view's curves, surfaces and points into the object frame and add them."""
+    tt = rig.turntable
+    for direction, ln, c in res.line_curves():
+        model.curves.append({"kind": f"{direction}_line", "view": index, "direction": direction,
+                             "band": int(ln.band), "edge": int(ln.edge),
+                             "coord": float(ln.coord),
+                             "curve": curve_to_object(c, tt, angle)})
+    cam_centre = -np.asarray(rig.camera.R, float).T @ np.asarray(rig.camera.T, float)
+    pts, nrm = [], []
+    for k, p in enumerate(res.patches):
+        base = {"view": index, "patch": k, "vertical": list(p.vertical),
+                "horizontal": list(p.horizontal), "n_curves": list(p.n_curves)}
+        for kind in ("horizontal_skin", "vertical_skin", "gordon"):
+            model.surfaces.append({"kind": kind, **base,
+                                   "surface": surface_to_object(getattr(p, kind), tt, angle)})
+        X, N = _patch_samples(p.gordon)
+        ok = np.isfinite(N).all(1)
+        X, N = X[ok], N[ok]
+        N = np.where(((cam_centre - X) * N).sum(1, keepdims=True) < 0, -N, N)
+        pts.append(X)
+        nrm.append(N)
+    if pts:
+        M = rig_to_object(np.zeros(3), tt, angle)
+        P = rig_to_object(np.concatenate(pts), tt, angle)
+        Nn = rig_to_object(np.concatenate(nrm), tt, angle) - M
+        model.points = np.concatenate([model.points, P])
+        model.normals = np.concatenate([model.normals, Nn])
+        model.point_view = np.concatenate([model.point_view, np.full(len(P), index)])
+    E = rig_to_object(res.edge_points, tt, angle)
+    model.edge_points = np.concatenate([model.edge_points, E])
+    model.edge_view = np.concatenate([model.edge_view, np.full(len(E), index)])
+    model.views.append({
+        "index": index, "table_angle": float(angle),
+        "lines": len(res.lines), "network_lines": [len(res.vlines), len(res.hlines)],
+        "complete_cells": res.cells[0], "cells": res.cells[1], "patches": len(res.patches),
+        "rms2d_px": float(np.median([ln.rms2d for ln in res.lines])) if res.lines else None,
+        "crossing_tol_mm": round(res.crossing_tol, 4),
+        **{k: round(v, 3) for k, v in res.times.items()}, **(extra or {})})
+
+
+def light_surface_check(res: ViewResult, rig, n_edges: int = 12, n_points: int = 40) -> dict:
+    """How far the paper's conic light surface lies from the exact one, on a view's lines.
+
+    Uses up to ``n_edges`` lines per direction and ``n_points`` pixels of each (their fitted 2-D
+    curves). Returns mm at the object and projector px, per direction
+    (:func:`nurbscan.reconstruct.light.compare_light_surfaces`).
+    """
+    out = {}
+    for direction in ("vertical", "horizontal"):
+        ls = [ln for ln in res.lines if ln.direction == direction]
+        if not ls:
+            continue
+        pick = [ls[i] for i in np.linspace(0, len(ls) - 1, min(n_edges, len(ls))).astype(int)]
+        px = [ln.curve2d.evaluate(np.linspace(*ln.curve2d.domain, n_points)) for ln in pick]
+        out[direction] = compare_light_surfaces(rig.projector, rig.camera, direction,
+                                                [ln.coord for ln in pick], px)
+    return out
+
+
+def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
+                     progress: Callable[[str], None] | None = None,
+                     views: list[int] | None = None, **view_kwargs) -> Model:
+    """Reconstruct every view of a scan folder and merge them in the object frame.
+
+    Parameters
+    ----------
+    scan_dir : path-like
+        The scan folder (``scan.json``; docs/scan-format.md). ``truth/`` is never read.
+    rig : Rig
+        The calibrated rig (camera, projector, turntable).
+    progress : callable, optional
+        Called with one line per view.
+    views : list of int, optional
+        Only these view indices (default all).
+    **view_kwargs
+        Passed to :func:`~nurbscan.reconstruct.view.reconstruct_view`.
+    """
+    from ..detect import detect_grid
+    from ..pattern import load_pattern
+
+    scan = Path(scan_dir)
+    doc = read_json(scan / "scan.json")
+    if not isinstance(doc, dict) or doc.get("type") != "nurbscan.scan":
+        raise NurbscanError(f"{scan / 'scan.json'}: not a nurbscan scan (type 'nurbscan.scan')")
+    pat = doc.get("pattern", {})
+    pattern = load_pattern(scan / pat.get("sidecar", "pattern.json"))
+    size = tuple(doc.get("image_size", (rig.camera.width, rig.camera.height)))
+    if size != (int(rig.camera.width), int(rig.camera.height)):
+        raise NurbscanError(f"calibration: camera size {rig.camera.width} x {rig.camera.height} "
+                            f"does not match the scan's images {size[0]} x {size[1]}")
+    unit = doc.get("angle_unit", "radians")
+    model = Model(meta={"source": str(scan), "pattern": pattern.summary()
+                        if hasattr(pattern, "summary") else None})
+    t_all = time.perf_counter()
+    entries = doc.get("views", [])
+    for n, v in enumerate(entries):
+        idx = int(v.get("index", n))
+        if views is not None and idx not in views:
+            continue
+        angle = float(v["table_angle"])
+        if unit.startswith("deg"):
+            angle = np.radians(angle)
+        t0 = time.perf_counter()
+        grid = read_image(scan / v["grid"])
+        white = read_image(scan / v["white"]) if v.get("white") else None
+        t1 = time.perf_counter()
+        det = detect_grid(grid, pattern, white)
+        t2 = time.perf_counter()
+        res = reconstruct_view(det, rig, pattern, **view_kwargs)
+        t3 = time.perf_counter()
+        if "light_surface" not in model.meta and res.lines:
+            model.meta["light_surface"] = light_surface_check(res, rig)
+        add_view(model, res, rig, idx, angle,
+                 {"read_s": round(t1 - t0, 3), "detect_s": round(t2 - t1, 3),
+                  "image_to_gordon_s": round(t3 - t1, 3)})
+        if progress is not None:
+            progress(f"view {n + 1}/{len(entries)} (table {np.degrees(angle):.1f} deg): "
+                     f"{det.nlines} lines, {res.cells[0]}/{res.cells[1]} complete cells, "
+                     f"{len(res.patches)} Gordon patches, {t3 - t1:.1f} s "
+                     f"(detect {t2 - t1:.1f} s)")
+    model.meta["total_s"] = round(time.perf_counter() - t_all, 3)
+    return model
