@@ -362,8 +362,19 @@ def unit_grid_error(S, err_fn, n=61):
     return err_fn(X)
 
 
-@pytest.mark.parametrize("case", ["sphere", "teapot"])
-def test_gordon_beats_skins_and_public_builders(case):
+_CASES: dict = {}
+REL = 1e-9  # floating-point slack of the "at least as close" comparisons (relative)
+
+
+def gordon_case(case):
+    """Network, our Gordon parts and both public builders' surfaces with their grid errors.
+
+    Built once per case (module cache). Returns ``(ucs, vcs, parts, eg, e1, e2, results)`` with
+    ``e*`` = (max, mean) distance to the true surface on a 61 x 61 grid over each surface's own
+    domain and ``results[name] = (degree_u, degree_v, (max, mean), surface)``.
+    """
+    if case in _CASES:
+        return _CASES[case]
     if case == "sphere":
         R = 50.0
         f = sphere_fun(R)
@@ -384,9 +395,6 @@ def test_gordon_beats_skins_and_public_builders(case):
     eg = unit_grid_error(parts.surface, err)
     e1 = unit_grid_error(parts.skin_u, err)
     e2 = unit_grid_error(parts.skin_v, err)
-    # the Gordon surface is closer to the true surface than either skin (max and mean)
-    assert eg[0] < 0.5 * min(e1[0], e2[0]) and eg[1] < 0.5 * min(e1[1], e2[1]), (eg, e1, e2)
-    assert network_deviation(parts.surface, ucs + vcs) < 1e-9
     results = {}
     for name, build in occ_builders().items():
         try:
@@ -394,22 +402,51 @@ def test_gordon_beats_skins_and_public_builders(case):
         except ImportError as exc:  # pragma: no cover - optional dependency missing
             pytest.skip(f"{name} not importable: {exc}")
         results[name] = (S.degree_u, S.degree_v, unit_grid_error(S, err), S)
+    _CASES[case] = (ucs, vcs, parts, eg, e1, e2, results)
+    return _CASES[case]
+
+
+@pytest.mark.parametrize("case", ["sphere", "teapot"])
+def test_gordon_beats_skins_and_public_builders(case):
+    ucs, vcs, parts, eg, e1, e2, results = gordon_case(case)
     print(case, "gordon", eg, "skin_u", e1, "skin_v", e2,
           {k: v[:3] for k, v in results.items()})
+    # the Gordon surface is closer to the true surface than either skin (max and mean)
+    assert eg[0] < 0.5 * min(e1[0], e2[0]) and eg[1] < 0.5 * min(e1[1], e2[1]), (eg, e1, e2)
+    assert network_deviation(parts.surface, ucs + vcs) < 1e-9
     for name, (du, dv, _e, _) in results.items():
         # no higher degree than the public builder
         assert parts.surface.degree_u <= du and parts.surface.degree_v <= dv, (name, du, dv)
     # OpenCASCADE's builder (exact, degree 9 x 9 here): at least as close, max and mean
     _, _, e, _ = results["GeomFill_Gordon"]
-    assert eg[0] <= e[0] * (1 + 1e-6) and eg[1] <= e[1] * (1 + 1e-6), (eg, e)
-    # ocp-gordon (TiGL port) approximates its reparametrised curves, so its surface leaves the
-    # network; ours interpolates it. Mean error at least as good; on the teapot patch its max
-    # error is 0.2 % lower than ours (its approximation error happens to offset the
-    # interpolation error there), so the max is compared within 1 %.
+    assert eg[0] <= e[0] * (1 + REL) and eg[1] <= e[1] * (1 + REL), (eg, e)
+    # ocp-gordon (TiGL port): mean at least as small (the max: next test); it approximates its
+    # reparametrised curves, so its surface leaves the network, ours interpolates it
     _, _, e, S = results["ocp_gordon"]
-    assert eg[1] <= e[1] * (1 + 1e-6), (eg, e)
-    assert eg[0] <= e[0] * 1.01, (eg, e)
+    assert eg[1] <= e[1] * (1 + REL), (eg, e)
     assert network_deviation(S, ucs + vcs) > 1e3 * network_deviation(parts.surface, ucs + vcs)
+
+
+OCP_TEAPOT_MAX = (
+    "teapot patch, 61x61 grid: our max 1.57095e-5 (mean 1.43360e-6) vs ocp-gordon's 1.56779e-5 "
+    "(mean 1.45430e-6): its max 0.2 % lower, its mean 1.4 % higher (241x241 grid: max "
+    "1.60383e-5 vs 1.60188e-5). The max sits at (u, v) = (0.167, 0.033), next to the v-curve "
+    "at u_1 = 0.218 whose own distance to the teapot is 1.5350e-5 (at v = 0.028): it is the "
+    "network's own error carried across by the cubic interpolation. ocp-gordon refits its "
+    "reparametrised curves (its surface leaves the network by up to 8.9e-7) and these "
+    "perturbations happen to lower the max there. Not beaten by: smooth (TiGL-like) "
+    "reparametrisation refitted to 1e-10 (max 1.57159e-5), median or chord-length common "
+    "parameters (1.57095e-5), not-a-knot cross knots (1.57022e-5); centripetal common "
+    "parameters give 1.55712e-5 here but lose to GeomFill_Gordon on the sphere "
+    "(1.490762e-4 > 1.490729e-4)")
+
+
+@pytest.mark.parametrize("case", [
+    "sphere", pytest.param("teapot", marks=pytest.mark.xfail(strict=True, reason=OCP_TEAPOT_MAX))])
+def test_gordon_max_error_not_above_ocp_gordon(case):
+    _, _, _, eg, _, _, results = gordon_case(case)
+    _, _, e, _ = results["ocp_gordon"]
+    assert eg[0] <= e[0] * (1 + REL), (eg, e)
 
 
 def test_refine_knot_vector_matches_single_insertions():
