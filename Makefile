@@ -3,6 +3,8 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+NODE_DIR  := $(VENV)/node
+VALIDATOR := $(NODE_DIR)/node_modules/gltf-validator/package.json
 
 .PHONY: demo test bench lint clean
 
@@ -12,13 +14,19 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
+# Khronos glTF-Validator (npm), used by the tests to check exported .glb files.
+$(VALIDATOR):
+	@if command -v npm >/dev/null; then \
+	  npm install --prefix $(NODE_DIR) --no-audit --no-fund --silent gltf-validator@2.0.0-dev.3.10; \
+	else echo "npm not found: the glTF-Validator test will be skipped"; fi
+
 demo: $(STAMP)
 	$(VENV)/bin/nurbscan demo -o demo
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks
 
-test: $(STAMP) lint
+test: $(STAMP) $(VALIDATOR) lint
 	$(PY) -m pytest -q
 
 bench: $(STAMP)

@@ -1,0 +1,130 @@
+"""Exports of a reconstructed model for CAD and VR (issue 8).
+
+* NURBS: Rhino ``.3dm`` (:mod:`.rhino`, rhino3dm) and IGES 5.3 (:mod:`.iges`, written by hand:
+  entities 126 and 128). STEP is not offered: writing it needs OpenCASCADE at run time, which
+  is a test-only dependency of nurbscan.
+* Meshes (:mod:`.mesh`): ``.glb`` (metres), ``.obj``, ``.ply``, ``.stl`` (millimetres), with
+  vertex colours from the scan's white-light images.
+
+:func:`load_model` is the one place that reads a model folder (it uses
+:func:`nurbscan.reconstruct.load_model`) and finds its scan, rig and white images.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from ..errors import NurbscanError
+from .iges import iges_text, write_iges
+from .mesh import MESH_FORMATS, MeshResult, build_mesh, mesh_bytes, tessellate, write_mesh
+from .rhino import to_rhino_curve, to_rhino_surface, write_3dm
+
+__all__ = ["FORMATS", "NURBS_FORMATS", "MESH_FORMATS", "DEFAULT_KINDS", "ALL_KINDS",
+           "MeshResult", "build_mesh", "export_model", "find_rig", "find_white_images",
+           "iges_text", "load_model", "mesh_bytes", "select", "tessellate", "to_rhino_curve",
+           "to_rhino_surface", "write_3dm", "write_iges", "write_mesh"]
+
+NURBS_FORMATS = ("3dm", "igs")
+FORMATS = MESH_FORMATS + NURBS_FORMATS
+ALL_KINDS = ("horizontal_line", "vertical_line", "horizontal_skin", "vertical_skin", "gordon")
+DEFAULT_KINDS = ("horizontal_line", "vertical_line", "gordon")
+
+
+def load_model(model_dir: str | os.PathLike):
+    """Read a model folder (``model.json``, ``points.npz``); see docs/model-format.md."""
+    from ..reconstruct import load_model as _load
+
+    m = _load(model_dir)
+    m.meta = dict(m.meta)
+    m.meta.setdefault("_folder", str(Path(model_dir)))
+    return m
+
+
+def _resolve(name, model) -> Path | None:
+    """A path recorded in the model's meta: as given, or relative to the model folder or its
+    parent."""
+    if not name:
+        return None
+    p = Path(str(name))
+    folder = Path(model.meta.get("_folder", "."))
+    folder = folder if folder.is_dir() else folder.parent
+    for cand in (p, folder / p, folder.parent / p):
+        if cand.exists():
+            return cand
+    return None
+
+
+def find_rig(model):
+    """The calibrated rig recorded in ``meta.calibration`` (or the scan's true rig), or None."""
+    from ..camera import load_rig
+
+    for name in (model.meta.get("calibration"), ):
+        p = _resolve(name, model)
+        if p is not None and p.is_file():
+            try:
+                return load_rig(p)
+            except NurbscanError:
+                pass
+    scan = _resolve(model.meta.get("source"), model)
+    if scan is not None and (scan / "truth" / "rig.json").is_file():
+        return load_rig(scan / "truth" / "rig.json")
+    return None
+
+
+def find_white_images(model) -> dict:
+    """``{view index: white image (H, W, 3) float RGB}`` from the scan folder, or {}."""
+    from ..io import read_image
+    from ..io.atomic import read_json
+
+    scan = _resolve(model.meta.get("source"), model)
+    if scan is None or not (scan / "scan.json").is_file():
+        return {}
+    doc = read_json(scan / "scan.json")
+    out = {}
+    for v in doc.get("views", []):
+        p = scan / str(v.get("white", ""))
+        if p.is_file():
+            out[int(v["index"])] = read_image(p)
+    return out
+
+
+def select(model, kinds=DEFAULT_KINDS) -> tuple[list, list]:
+    """``(curves, surfaces)`` as lists of ``(kind, geometry)`` of the requested kinds."""
+    bad = set(kinds) - set(ALL_KINDS)
+    if bad:
+        raise NurbscanError(f"kinds: unknown {sorted(bad)}; expected some of {ALL_KINDS}")
+    curves = [(c["kind"], c["curve"]) for c in model.curves if c["kind"] in kinds]
+    surfaces = [(s["kind"], s["surface"]) for s in model.surfaces if s["kind"] in kinds]
+    return curves, surfaces
+
+
+def export_model(model, path: str | os.PathLike, fmt: str | None = None,
+                 kinds=DEFAULT_KINDS, colour: bool = True, per_span: int = 4) -> Path:
+    """Export a model (a folder or a loaded Model) to ``path`` in ``fmt`` (default: suffix).
+
+    NURBS formats (3dm, igs) hold the curves and surfaces of ``kinds``; mesh formats (glb,
+    obj, ply, stl) the fused tessellation of :func:`build_mesh`, coloured from the white-light
+    images when ``colour`` and the scan can be found. The file is written atomically.
+    """
+    path = Path(path)
+    fmt = (fmt or path.suffix.lstrip(".")).lower()
+    if fmt in ("iges", "stp", "step"):
+        if fmt == "iges":
+            fmt = "igs"
+        else:
+            raise NurbscanError("format step: not supported (needs OpenCASCADE at run time); "
+                                "use igs or 3dm")
+    if fmt not in FORMATS:
+        raise NurbscanError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
+    if not hasattr(model, "surfaces"):
+        model = load_model(model)
+    if fmt in NURBS_FORMATS:
+        curves, surfaces = select(model, kinds)
+        if fmt == "3dm":
+            return write_3dm(path, curves, surfaces)
+        return write_iges(path, [c for _, c in curves], [s for _, s in surfaces])
+    rig = find_rig(model) if colour else None
+    images = find_white_images(model) if colour and rig is not None else {}
+    mesh = build_mesh(model, rig, images, per_span=per_span)
+    return write_mesh(path, mesh, fmt)
