@@ -1,8 +1,59 @@
 """``nurbscan calibrate``: calibrate camera, projector and turntable from target images."""
 
-from ._todo import register_todo
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
 
 
-def register(sub) -> None:
+def register(sub) -> argparse.ArgumentParser:
     """Add the ``calibrate`` sub-command."""
-    register_todo(sub, "calibrate", "Calibrate camera, projector, turntable from target images", 6)
+    p = sub.add_parser(
+        "calibrate",
+        help="Calibrate camera, projector and turntable from images of a planar target",
+        description=(
+            "Calibrate the Tsai camera, the projector (as an inverse camera), their relative "
+            "pose and the turntable axis from the images of a chessboard target in "
+            "CALIBRATION_DIR (white-light and projected-grid image of each pose). The target "
+            "description, the pose list and the table angles are read from scan.json beside "
+            "the folder. Writes the rig (OUTPUT, the same form as the simulator's "
+            "truth/rig.json), the residual figures (OUTPUT with suffix _residuals.json) and a "
+            "picture of the residuals (OUTPUT with suffix _residuals.png)."
+        ),
+    )
+    p.add_argument("calibration_dir", metavar="CALIBRATION_DIR",
+                   help="folder of calibration images (scan/calibration)")
+    p.add_argument("--pattern", default=None,
+                   help="pattern sidecar JSON (default: pattern.json beside the folder)")
+    p.add_argument("-o", "--output", required=True, metavar="OUTPUT",
+                   help="rig file to write, e.g. calib.json")
+    p.add_argument("--camera-pitch", type=float, default=None, metavar="MM",
+                   help="camera pixel pitch, mm (default: scan.json, else the default "
+                        "camera's sensor width over the image width)")
+    p.add_argument("--projector-pitch", type=float, default=None, metavar="MM",
+                   help="projector pixel pitch, mm (default: scan.json, else the default "
+                        "projector's panel width over the pattern width)")
+    p.add_argument("--exclude", type=int, nargs="*", default=(), metavar="INDEX",
+                   help="pose indices to leave out (e.g. a held-out pose)")
+    p.add_argument("--max-points", type=int, default=1500,
+                   help="projector observations kept per pose (default 1500)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the calibration and write rig, residual figures and residual picture."""
+    from ..calibrate import calibrate_scan, write_outputs
+
+    progress = None if args.quiet else (lambda m: print(m, file=sys.stderr))
+    res = calibrate_scan(args.calibration_dir, args.pattern, exclude=tuple(args.exclude),
+                         camera_pitch=args.camera_pitch, projector_pitch=args.projector_pitch,
+                         max_points_per_view=args.max_points, progress=progress)
+    paths = write_outputs(res, Path(args.output))
+    f = res.figures
+    print(f"nurbscan calibrate: wrote {', '.join(str(p) for p in paths)} (camera RMS "
+          f"{f['camera_rms_px']:.3f} px, projector RMS {f['projector_rms_px']:.3f} px, "
+          f"{f['views_used']} of {f['views_given']} poses)")
+    return 0

@@ -1,0 +1,118 @@
+"""Benchmark of the calibration (issue 6) on the full-size default rig.
+
+Renders the calibration images of a synthetic scan with the default rig (camera 3072 x 2304,
+projector 1920 x 1080) and the default noise, calibrates from them with one free pose held
+out, and measures the figures of issue 6 against the simulator's true rig: reprojection RMS
+(camera and projector px), focal lengths, principal points, k1, camera-projector pose,
+turntable axis, and the triangulation error on the held-out pose.
+
+Usage: ``python benchmarks/bench_calibrate.py [SCAN_DIR]`` (an existing scan folder is reused;
+a new one is rendered into SCAN_DIR and kept).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HELD_OUT = 11  # a free pose (index in scan.json) kept out of the calibration
+
+
+def make_scan(out: Path, width: int | None = None, height: int | None = None) -> Path:
+    """Render a scan with calibration images (one object view of a plane) into ``out``."""
+    from nurbscan.simulate import Plane
+    from nurbscan.simulate.rig import default_rig, scale_camera
+    from nurbscan.simulate.scan import simulate_scan
+
+    rig = default_rig()
+    if width:
+        rig = scale_camera(rig, width, height)
+    return simulate_scan(Plane(), out, views=1, rig=rig)
+
+
+def evaluate(scan: Path, held_out: int = HELD_OUT, max_points: int = 4000) -> dict:
+    """Calibrate ``scan`` (holding out pose ``held_out``) and measure against its truth."""
+    from nurbscan.calibrate import calibrate_scan, compare_rigs, held_out_error
+    from nurbscan.camera import load_rig
+    from nurbscan.detect import detect_grid
+    from nurbscan.io import read_image
+    from nurbscan.pattern import load_pattern
+
+    scan = Path(scan)
+    t0 = time.perf_counter()
+    res = calibrate_scan(scan / "calibration", exclude=(held_out,),
+                         max_points_per_view=max_points)
+    t_cal = time.perf_counter() - t0
+    true = load_rig(scan / "truth" / "rig.json")
+    cmp = compare_rigs(res.rig, true)
+    truth = json.loads((scan / "truth" / "calibration.json").read_text())
+    pose = next(p for p in truth["poses"] if p["index"] == held_out)
+    doc = json.loads((scan / "scan.json").read_text())
+    entry = next(p for p in doc["calibration"]["poses"] if p["index"] == held_out)
+    det = detect_grid(read_image(scan / entry["grid"]), load_pattern(scan / "pattern.json"),
+                      white=read_image(scan / entry["white"]))
+    f = res.figures
+    bias = [f["edge_bias_projector_px"]["x"], f["edge_bias_projector_px"]["y"]]
+    R, T = np.array(pose["board_to_rig"]["R"]), np.array(pose["board_to_rig"]["T"])
+    ho = held_out_error(res.rig, true, det, R, T, edge_bias=bias)
+    ho_raw = held_out_error(res.rig, true, det, R, T)
+    floor = held_out_error(true, true, det, R, T, edge_bias=bias)
+    return {
+        "camera size (px)": f"{true.camera.width} x {true.camera.height}",
+        "calibration time (s)": t_cal,
+        "views used": f["views_used"],
+        "projector observations": f["projector_observations"],
+        "camera reprojection RMS (px)": f["camera_rms_px"],
+        "projector reprojection RMS (projector px)": f["projector_rms_px"],
+        "camera f rel. error": cmp["camera"]["f_rel_err"],
+        "camera principal point error (px)": cmp["camera"]["principal_point_err_px"],
+        "camera k1 rel. error": cmp["camera"]["k1_rel_err"],
+        "projector f rel. error": cmp["projector"]["f_rel_err"],
+        "projector principal point error (px)": cmp["projector"]["principal_point_err_px"],
+        "projector k1 rel. error": cmp["projector"]["k1_rel_err"],
+        "camera-projector translation error (mm)": cmp["relative_translation_err_mm"],
+        "camera-projector rotation error (deg)": cmp["relative_rotation_err_deg"],
+        "turntable direction error (deg)": cmp["turntable_direction_err_deg"],
+        "turntable axis distance (mm)": cmp["turntable_axis_distance_mm"],
+        "turntable table-top height error (mm)": cmp["turntable_height_err_mm"],
+        "held-out pose triangulation RMS (mm)": ho["rms_mm"],
+        "held-out pose distance to plane RMS (mm)": ho["plane_rms_mm"],
+        "held-out pose points": ho["points"],
+        "held-out pose triangulation RMS without edge-bias correction (mm)": ho_raw["rms_mm"],
+        "held-out pose triangulation RMS with the TRUE rig (detection floor, mm)":
+            floor["rms_mm"],
+        "detector band-edge bias x / y (projector px)": f"{bias[0]:.3f} / {bias[1]:.3f}",
+        "poses left out (target not found)": "; ".join(res.warnings) or "none",
+    }
+
+
+def bench(scan: str | None = None) -> dict:
+    """Render (unless ``scan`` is given), calibrate and measure; a dict of figures."""
+    if scan is not None:
+        scan = Path(scan)
+        if not (scan / "scan.json").is_file():
+            t0 = time.perf_counter()
+            make_scan(scan)
+            t_sim = time.perf_counter() - t0
+            out = evaluate(scan)
+            out["simulation time (s)"] = t_sim
+            return out
+        return evaluate(scan)
+    with tempfile.TemporaryDirectory(prefix="bench_calibrate_") as tmp:
+        t0 = time.perf_counter()
+        make_scan(Path(tmp) / "scan")
+        t_sim = time.perf_counter() - t0
+        out = evaluate(Path(tmp) / "scan")
+        out["simulation time (s)"] = t_sim
+        return out
+
+
+if __name__ == "__main__":
+    res = bench(sys.argv[1] if len(sys.argv) > 1 else None)
+    for k, v in res.items():
+        print(f"{k}: {v:.6g}" if isinstance(v, float) else f"{k}: {v}")

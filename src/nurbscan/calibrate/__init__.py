@@ -1,0 +1,61 @@
+"""Calibration of camera, projector and turntable from images of a planar target (issue 6).
+
+method.md section 4. :func:`calibrate_scan` runs the whole calibration on a scan's
+calibration folder and returns a :class:`CalibrationResult` whose ``rig`` is a
+:class:`nurbscan.camera.Rig`; :func:`write_outputs` saves the rig, the residual figures and
+their picture; :func:`compare_rigs` measures an estimated rig against the truth.
+
+Parts: :mod:`.camera` (chessboard detection, Zhang initialisation, Tsai fit),
+:mod:`.projector` (projector as an inverse camera), :mod:`.turntable` (axis from the target
+on the table), :mod:`._bundle` (joint least squares), :mod:`._tsai` (vectorised model).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .camera import board_points, calibrate_camera, detect_chessboard
+from .pipeline import (
+    CalibrationResult,
+    calibrate_scan,
+    compare_rigs,
+    held_out_error,
+    residual_image,
+    triangulate_edges,
+)
+from .projector import init_projector, plane_homography
+from .turntable import fit_turntable
+
+
+def write_outputs(result: CalibrationResult, output: Path) -> list[Path]:
+    """Write the rig (``output``), ``<stem>_residuals.json`` and ``<stem>_residuals.png``.
+
+    All files are written atomically. Returns their paths.
+    """
+    from ..io import write_image, write_json
+
+    output = Path(output)
+    result.rig.save(output)
+    js = output.with_name(output.stem + "_residuals.json")
+    write_json(js, result.residuals_dict())
+    png = output.with_name(output.stem + "_residuals.png")
+    cam = result.rig.camera
+    write_image(png, residual_image(result, (int(cam.width), int(cam.height))))
+    return [output, js, png]
+
+
+__all__ = [
+    "CalibrationResult",
+    "board_points",
+    "calibrate_camera",
+    "calibrate_scan",
+    "compare_rigs",
+    "detect_chessboard",
+    "fit_turntable",
+    "held_out_error",
+    "init_projector",
+    "plane_homography",
+    "residual_image",
+    "triangulate_edges",
+    "write_outputs",
+]

@@ -1,0 +1,232 @@
+"""Camera calibration from views of a planar chessboard: detection, Zhang initialisation, Tsai fit.
+
+1. Corners: :func:`cv2.findChessboardCornersSB` (sector-based detector, sub-pixel) on the
+   white-light image; for a large image where it fails, on the half-size image refined by
+   :func:`cv2.cornerSubPix` at full size; last :func:`cv2.findChessboardCorners` +
+   :func:`cv2.cornerSubPix`.
+   The corner order is made consistent across views by the colour of the first square.
+2. Initial values: :func:`cv2.calibrateCamera` (Zhang 2000) with one radial term, converted to
+   Tsai's parameters (:func:`tsai_from_opencv`).
+3. Exact fit of Tsai's model (distorted -> undistorted radial term, method.md section 4) by
+   non-linear least squares over ``(f, cx, cy, sx, k1)`` and every view's pose
+   (:func:`nurbscan.calibrate._bundle.run_bundle`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..errors import NurbscanError
+from ._bundle import BundleState, CornerObs, camera_residuals, run_bundle
+
+
+def board_points(inner: tuple[int, int], square: float) -> np.ndarray:
+    """Board-frame corner coordinates (N, 3) in mm, OpenCV's order (x fastest), z = 0.
+
+    Parameters
+    ----------
+    inner : (int, int)
+        Inner corners per row and per column ``(nx, ny)``.
+    square : float
+        Square size, mm.
+    """
+    nx, ny = inner
+    gx, gy = np.meshgrid(np.arange(nx), np.arange(ny))
+    return np.stack([gx.ravel() * square, gy.ravel() * square, np.zeros(nx * ny)], axis=1)
+
+
+def _grey8(image: np.ndarray) -> np.ndarray:
+    img = np.asarray(image)
+    if img.ndim == 3:
+        img = img.mean(axis=2)
+    if img.dtype != np.uint8:
+        img = np.clip(np.asarray(img, float) * (255.0 if img.max() <= 1.0 else 1.0), 0, 255)
+        img = np.round(img).astype(np.uint8)
+    return img
+
+
+def detect_chessboard(image: np.ndarray, inner: tuple[int, int],
+                      first_square_dark: bool | None = True) -> np.ndarray | None:
+    """Find the inner corners of a chessboard with sub-pixel accuracy.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, 3)
+        Grey or RGB image, float in [0, 1] or uint8.
+    inner : (int, int)
+        Inner corners ``(nx, ny)``.
+    first_square_dark : bool or None
+        Colour of the square between corners 0, 1, nx and nx + 1 on the physical board. The
+        detector may return the corners in reverse order (a 180 degree turn); when nx + ny is
+        odd the square colour tells the two apart and the order is fixed to match. None leaves
+        the detector's order.
+
+    Returns
+    -------
+    ndarray, shape (nx * ny, 2) or None
+        Corner pixels in OpenCV's order (row by row, x fastest), or None if not found.
+    """
+    grey = _grey8(image)
+    nx, ny = inner
+    ok, c = cv2.findChessboardCornersSB(
+        grey, (nx, ny), flags=cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_NORMALIZE_IMAGE)
+    if not ok and min(grey.shape) > 1000:
+        # large images: find the board at half size, then refine at full size
+        half = cv2.resize(grey, (grey.shape[1] // 2, grey.shape[0] // 2),
+                          interpolation=cv2.INTER_AREA)
+        ok, ch = cv2.findChessboardCornersSB(
+            half, (nx, ny), flags=cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        if ok:
+            # pixel centres at integers: x_full = 2 x_half + 0.5
+            c = (np.asarray(ch, np.float32) * 2.0 + 0.5).astype(np.float32)
+            crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
+            c = cv2.cornerSubPix(grey, c.reshape(-1, 1, 2), (7, 7), (-1, -1), crit)
+    if not ok:
+        ok, c = cv2.findChessboardCorners(
+            grey, (nx, ny), flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+        if not ok:
+            return None
+        crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
+        c = cv2.cornerSubPix(grey, c, (5, 5), (-1, -1), crit)
+    c = np.asarray(c, float).reshape(-1, 2)
+    if first_square_dark is not None and (nx + ny) % 2 == 1:
+        centre = (c[0] + c[1] + c[nx] + c[nx + 1]) / 4.0
+        other = (c[-1] + c[-2] + c[-1 - nx] + c[-2 - nx]) / 4.0
+        g = grey.astype(float)
+
+        def sample(p):
+            x, y = int(round(p[0])), int(round(p[1]))
+            return g[max(y - 1, 0):y + 2, max(x - 1, 0):x + 2].mean()
+
+        dark_first = sample(centre) < sample(other)
+        if dark_first != first_square_dark:
+            c = c[::-1].copy()
+    return c
+
+
+def tsai_from_opencv(K: np.ndarray, dist: np.ndarray, dx: float, dy: float) -> np.ndarray:
+    """Initial Tsai intrinsics ``(f, cx, cy, sx, k1)`` from an OpenCV camera matrix.
+
+    ``fy = f / dy`` and ``fx = sx f / dx`` (Tsai's pixel equations with Xd ~ Xu); OpenCV's
+    first radial term (undistorted -> distorted, normalised coordinates) becomes, to first
+    order, Tsai's (distorted -> undistorted, mm): ``k1 = -k1_cv / f^2``.
+    """
+    f = K[1, 1] * dy
+    sx = K[0, 0] * dx / f
+    k1cv = float(np.ravel(dist)[0]) if dist is not None and np.size(dist) else 0.0
+    return np.array([f, K[0, 2], K[1, 2], sx, -k1cv / f**2])
+
+
+@dataclass
+class CameraFit:
+    """Result of :func:`calibrate_camera`."""
+
+    kc: np.ndarray  # (5,) f mm, cx px, cy px, sx, k1 mm^-2
+    rvecs: np.ndarray  # (P, 3) board -> camera rotations (Rodrigues)
+    tvecs: np.ndarray  # (P, 3) board -> camera translations, mm
+    per_view_rms: np.ndarray  # (P,) px
+    rms: float  # px over all corners
+    residuals: np.ndarray  # (M, 2) px
+    corners: CornerObs  # the corners used (gross errors left out)
+
+
+def opencv_init(corners: list[np.ndarray], board: np.ndarray, size: tuple[int, int],
+                dx: float, dy: float, names: list[str] | None = None):
+    """Zhang's method through :func:`cv2.calibrateCamera` (one radial term, no tangential).
+
+    Returns the Tsai intrinsics (5,), Rodrigues vectors (P, 3) and translations (P, 3).
+    Raises :class:`NurbscanError` when the views are degenerate (all parallel planes).
+    """
+    obj = [board.astype(np.float32)] * len(corners)
+    img = [c.astype(np.float32).reshape(-1, 1, 2) for c in corners]
+    flags = (cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST)
+    _check_not_parallel(corners, board, names, size)
+    try:
+        _, K, dist, rv, tv = cv2.calibrateCamera(obj, img, size, None, None, flags=flags)
+    except cv2.error as exc:
+        raise NurbscanError(f"calibration: OpenCV initialisation failed ({exc.msg})") from None
+    kc = tsai_from_opencv(K, dist, dx, dy)
+    return kc, np.array(rv, float).reshape(-1, 3), np.array(tv, float).reshape(-1, 3)
+
+
+def _check_not_parallel(corners, board, names, size=None) -> None:
+    """Refuse views whose board planes are all parallel (Zhang's method then fails).
+
+    The vanishing line of a view's board plane, ``l = H^-T e3`` (H: board -> image
+    homography), depends only on the plane's orientation; the plane normal in the camera frame
+    is ``n ~ K^T l`` (Hartley and Zisserman 2004, section 8.6). Parallel planes give the same
+    ``n`` for any K, so a rough K (focal length = image width, centred principal point) serves
+    to measure the largest angle between the views' normals; below 1 degree the views are
+    degenerate.
+    """
+    if len(corners) < 2:
+        raise NurbscanError("calibration: at least 2 target views are needed")
+    w, h = size if size is not None else (2 * np.abs(corners[0]).max(),) * 2
+    K = np.array([[w, 0, w / 2], [0, w, h / 2], [0, 0, 1.0]])
+    normals = []
+    for c in corners:
+        H, _ = cv2.findHomography(board[:, :2], c, 0)
+        if H is None:
+            continue
+        n = K.T @ np.linalg.solve(H.T, [0.0, 0.0, 1.0])
+        n = n / np.linalg.norm(n)
+        normals.append(n * np.sign(n[2] if n[2] != 0 else 1.0))
+    normals = np.array(normals)
+    cosmin = np.min(np.abs(normals @ normals.T)) if len(normals) >= 2 else 1.0
+    if np.degrees(np.arccos(min(cosmin, 1.0))) < 1.0:
+        nm = "" if not names else f" ({', '.join(names)})"
+        raise NurbscanError(
+            f"calibration: degenerate target views: all board planes are parallel{nm}; "
+            "tilt the target differently between views")
+
+
+def calibrate_camera(corners: list[np.ndarray], board: np.ndarray, size: tuple[int, int],
+                     dx: float, dy: float, names: list[str] | None = None) -> CameraFit:
+    """Calibrate Tsai's camera model from chessboard corners of several views.
+
+    Parameters
+    ----------
+    corners : list of ndarray, each (N, 2)
+        Detected corners of each view (camera px), in the order of ``board``.
+    board : ndarray, shape (N, 3)
+        Board-frame corner coordinates, mm (:func:`board_points`).
+    size : (int, int)
+        Image width and height, px.
+    dx, dy : float
+        Sensor pixel pitch, mm (fixed: f, dx, dy are not separately identifiable).
+    names : list of str, optional
+        View names for messages.
+
+    Returns
+    -------
+    CameraFit
+        Intrinsics, view poses and reprojection residuals (per view RMS and total, px).
+    """
+    if len(corners) < 3:
+        raise NurbscanError(
+            f"calibration: {len(corners)} usable target views; at least 3 are needed")
+    kc0, rv0, tv0 = opencv_init(corners, board, size, dx, dy, names)
+    obs = CornerObs(board=np.tile(board, (len(corners), 1)),
+                    pixels=np.concatenate(corners),
+                    view=np.repeat(np.arange(len(corners)), len(board)))
+    st = run_bundle(BundleState(kc=kc0, rvecs=rv0, tvecs=tv0), obs, None, (dx, dy))
+    # gross corner errors (a corner caught on a shadow or a glint): drop, refit
+    r = np.linalg.norm(camera_residuals(st.kc, st.rvecs, st.tvecs, obs, dx, dy), axis=1)
+    good = r < max(6.0 * 1.4826 * np.median(r), 0.5)
+    if not np.all(good):
+        obs = CornerObs(board=obs.board[good], pixels=obs.pixels[good], view=obs.view[good])
+        st = run_bundle(st, obs, None, (dx, dy))
+    return camera_fit_from_state(st, obs, dx, dy)
+
+
+def camera_fit_from_state(st: BundleState, obs: CornerObs, dx: float, dy: float) -> CameraFit:
+    """Residual figures of a fitted state (per view and total RMS, px)."""
+    r = camera_residuals(st.kc, st.rvecs, st.tvecs, obs, dx, dy)
+    d2 = np.sum(r**2, axis=1)
+    P = len(st.rvecs)
+    per = np.sqrt(np.bincount(obs.view, d2, P) / np.maximum(np.bincount(obs.view, None, P), 1))
+    return CameraFit(kc=st.kc, rvecs=st.rvecs, tvecs=st.tvecs, per_view_rms=per,
+                     rms=float(np.sqrt(d2.mean())), residuals=r, corners=obs)

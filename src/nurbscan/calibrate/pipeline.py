@@ -1,0 +1,600 @@
+"""Calibrate a whole rig from a scan's calibration folder; compare rigs; residual figures.
+
+Steps (method.md section 4; issue 6):
+
+1. Read ``scan.json`` beside the calibration folder: the target (chessboard: inner corners,
+   square size), the pose list (white and grid images, ``kind`` free or turntable, the table
+   angle of turntable poses) and the image size. The ``truth/`` folder is never read.
+2. Camera: chessboard corners in each white image (a view where the target is not found is
+   named in a warning and left out), Zhang's initialisation, Tsai fit
+   (:mod:`nurbscan.calibrate.camera`).
+3. Projector: the grid in each view is decoded by :func:`nurbscan.detect.detect_grid`; edge
+   points on white squares of the target (away from the printed square edges, where the
+   albedo step biases the band edges) become single-coordinate projector observations
+   (:mod:`nurbscan.calibrate.projector`); initialisation, then the joint bundle of camera,
+   projector and board poses, with a second pass after rejecting gross outliers (> 5 sigma).
+   The detector's symmetric band-edge bias (bands read narrower or wider than drawn) is
+   fitted as two nuisance parameters and reported (``edge_bias_projector_px``).
+4. Turntable: axis from the turntable views (:mod:`nurbscan.calibrate.turntable`); its point
+   is placed on the table top, the plane of the board's lower edge (the target stands on the
+   table).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import NurbscanError
+from ..io import read_image
+from ..io.atomic import read_json
+from ._bundle import (
+    BundleState,
+    ProjObs,
+    camera_residuals,
+    projector_residuals,
+    run_bundle,
+)
+from ._tsai import back_project_local, project_local, rotmats
+from .camera import board_points, calibrate_camera, detect_chessboard
+from .projector import board_frame_points, init_projector
+from .turntable import fit_turntable
+
+#: Sensor of the default camera (3072 px of 2.3 um) and micromirror array of the default
+#: projector (1920 px of 7.56 um): pixel pitches are defaulted from these sensor widths when
+#: neither scan.json nor the caller gives them (f and the pitch are not separately
+#: identifiable; only f / pitch matters to the geometry).
+DEFAULT_CAMERA_SENSOR_WIDTH_MM = 3072 * 0.0023
+DEFAULT_PROJECTOR_SENSOR_WIDTH_MM = 1920 * 0.00756
+
+MIN_VIEWS = 3
+
+
+@dataclass
+class Target:
+    """Chessboard description from scan.json (``"type": "nurbscan.chessboard"``)."""
+
+    cols: int
+    rows: int
+    square: float
+    margin: float = 20.0
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str) -> Target:
+        try:
+            if "chessboard" not in str(d.get("type", "")):
+                raise ValueError(f"type {d.get('type')!r} is not a chessboard")
+            cols, rows = (int(v) for v in d["inner_corners"])
+            return cls(cols, rows, float(d["square_mm"]), float(d.get("margin_mm", 20.0)))
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise NurbscanError(f"{source}: bad calibration target description ({exc})") from None
+
+    def corners(self) -> np.ndarray:
+        return board_points((self.cols, self.rows), self.square)
+
+
+@dataclass
+class CalibrationResult:
+    """Everything :func:`calibrate_scan` found."""
+
+    rig: Any  # nurbscan.camera.Rig
+    views: list[str]  # names of the views used
+    kinds: list[str]
+    table_angles: list[float | None]
+    kc: np.ndarray
+    kp: np.ndarray
+    rp: np.ndarray
+    tp: np.ndarray
+    rvecs: np.ndarray
+    tvecs: np.ndarray
+    figures: dict
+    corner_residuals: list[np.ndarray]  # per view (N, 2) px
+    corner_pixels: list[np.ndarray]
+    proj_residuals: list[np.ndarray]  # per view (K,) projector px
+    proj_pixels: list[np.ndarray]  # per view (K, 2) camera px
+    warnings: list[str] = field(default_factory=list)
+
+    def residuals_dict(self) -> dict:
+        """JSON-ready residual figures (``"type": "nurbscan.calibration_residuals"``)."""
+        return {"type": "nurbscan.calibration_residuals", "version": 1, **self.figures,
+                "warnings": list(self.warnings)}
+
+
+def _say(progress, msg):
+    if progress is not None:
+        progress(msg)
+
+
+def read_scan_json(calib_dir: Path) -> dict:
+    """The scan.json beside (or inside) the calibration folder."""
+    for cand in (calib_dir.parent / "scan.json", calib_dir / "scan.json"):
+        if cand.is_file():
+            return read_json(cand) | {"_path": str(cand), "_root": str(cand.parent)}
+    raise NurbscanError(f"{calib_dir}: no scan.json beside the calibration folder (looked in "
+                        f"{calib_dir.parent} and {calib_dir})")
+
+
+def _pitch(doc: dict, key: str, width: int, default_sensor: float) -> tuple[float, float]:
+    dev = doc.get(key)
+    if isinstance(dev, dict) and "pixel_pitch_mm" in dev:
+        p = dev["pixel_pitch_mm"]
+        p = (float(p), float(p)) if np.isscalar(p) else (float(p[0]), float(p[1]))
+        if min(p) <= 0:
+            raise NurbscanError(f"scan.json {key}.pixel_pitch_mm={p}: must be positive")
+        return p
+    d = default_sensor / float(width)
+    return d, d
+
+
+def edge_observations(det, kc, rvec, tvec, target: Target, view: int, dc,
+                      max_points: int, keep_off_edges_mm: float = 2.0,
+                      rng: np.random.Generator | None = None) -> ProjObs:
+    """Single-coordinate projector observations from a detection result on the target.
+
+    Keeps edge points whose board point (camera ray meets the view's board plane) lies on a
+    white square or the white margin, at least ``keep_off_edges_mm`` from any printed square
+    edge and from the board's outline; then at most ``max_points`` of them (evenly at random).
+    """
+    x = np.asarray(det.x, float)
+    if len(x) == 0:
+        return ProjObs(np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.int64),
+                       np.zeros(0, np.int64), np.zeros(0))
+    px = np.stack([x, np.asarray(det.y, float)], axis=1)
+    line = np.asarray(det.line)
+    axis = np.asarray(det.direction)[line].astype(np.int64)
+    value = np.asarray(det.coord, float)[line]
+    v = np.full(len(px), view, np.int64)
+    sign = 2.0 * np.asarray(det.edge)[line] - 1.0  # rising -1, falling +1
+    o = ProjObs(px, value, axis, v, sign)
+    xy = board_frame_points(kc, rvec[None], tvec[None], ProjObs(px, value, axis, v * 0), *dc)
+    s = target.square
+    ix, iy = np.floor(xy[:, 0] / s), np.floor(xy[:, 1] / s)
+    in_sq = (ix >= -1) & (ix <= target.cols - 1) & (iy >= -1) & (iy <= target.rows - 1)
+    white = ~in_sq | ((ix + iy) % 2 == 1)
+    fx, fy = xy[:, 0] / s - ix, xy[:, 1] / s - iy
+    m = keep_off_edges_mm / s
+    away = ~in_sq | ((fx > m) & (fx < 1 - m) & (fy > m) & (fy < 1 - m))
+    x0, x1 = -s - target.margin, target.cols * s + target.margin
+    y0, y1 = -s - target.margin, target.rows * s + target.margin
+    inside = (xy[:, 0] > x0 + 2 * keep_off_edges_mm) & (xy[:, 0] < x1 - 2 * keep_off_edges_mm) \
+        & (xy[:, 1] > y0 + 2 * keep_off_edges_mm) & (xy[:, 1] < y1 - 2 * keep_off_edges_mm)
+    # points just outside the square field are on the white margin: away from the outer squares
+    near_field = (xy[:, 0] > -s - keep_off_edges_mm) & (xy[:, 0] < target.cols * s
+                                                        + keep_off_edges_mm) \
+        & (xy[:, 1] > -s - keep_off_edges_mm) & (xy[:, 1] < target.rows * s + keep_off_edges_mm)
+    keep = white & away & inside & ~(~in_sq & near_field) & np.all(np.isfinite(xy), axis=1)
+    idx = np.flatnonzero(keep)
+    if len(idx) > max_points:
+        rng = rng or np.random.default_rng(0)
+        idx = np.sort(rng.choice(idx, max_points, replace=False))
+    return ProjObs(o.pixels[idx], o.value[idx], o.axis[idx], o.view[idx], o.sign[idx])
+
+
+def _corner_index(board_pts: np.ndarray, target: Target) -> np.ndarray:
+    """Index (row-major, x fastest) of board corners given by their board coordinates."""
+    ij = np.round(board_pts[:, :2] / target.square).astype(int)
+    return ij[:, 1] * target.cols + ij[:, 0]
+
+
+def _concat(obs: list[ProjObs]) -> ProjObs:
+    return ProjObs(*(np.concatenate([getattr(o, k) for o in obs])
+                     for k in ("pixels", "value", "axis", "view", "sign")))
+
+
+def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
+                   exclude: tuple[int, ...] = (), camera_pitch: float | None = None,
+                   projector_pitch: float | None = None, max_points_per_view: int = 1500,
+                   progress: Callable[[str], None] | None = None) -> CalibrationResult:
+    """Calibrate camera, projector and turntable from a scan's calibration images.
+
+    Parameters
+    ----------
+    calib_dir : path-like
+        The calibration folder (``scan/calibration``); ``scan.json`` is read beside it.
+    pattern : nurbscan.pattern.Pattern or path-like, optional
+        The projected pattern (default ``pattern.json`` of the scan folder).
+    exclude : tuple of int
+        Pose indices (scan.json ``index``) to leave out (e.g. a held-out pose).
+    camera_pitch, projector_pitch : float, optional
+        Pixel pitch, mm (default: scan.json ``camera.pixel_pitch_mm`` /
+        ``projector.pixel_pitch_mm``, else the default rig's sensor width over the image
+        width).
+    max_points_per_view : int
+        Projector observations kept per view (edge points, at random).
+    progress : callable, optional
+        Called with one line per step.
+
+    Returns
+    -------
+    CalibrationResult
+    """
+    from ..camera import Camera, Projector, Rig, Turntable
+    from ..detect import detect_grid
+    from ..pattern import Pattern, load_pattern
+
+    t0 = time.perf_counter()
+    calib_dir = Path(calib_dir)
+    if not calib_dir.is_dir():
+        raise NurbscanError(f"{calib_dir}: calibration folder not found")
+    doc = read_scan_json(calib_dir)
+    root = Path(doc["_root"])
+    cal = doc.get("calibration")
+    if not isinstance(cal, dict) or "target" not in cal or "poses" not in cal:
+        raise NurbscanError(f"{doc['_path']}: no 'calibration' section with target and poses")
+    target = Target.from_dict(cal["target"], f"{doc['_path']} calibration.target")
+    if pattern is None:
+        pattern = root / "pattern.json"
+    if not isinstance(pattern, Pattern):
+        pattern = load_pattern(pattern)
+    poses = [p for p in cal["poses"] if int(p.get("index", -1)) not in set(exclude)]
+    if len(poses) < MIN_VIEWS:
+        raise NurbscanError(f"{doc['_path']}: {len(poses)} calibration poses; at least "
+                            f"{MIN_VIEWS} are needed")
+    board = target.corners()
+    inner = (target.cols, target.rows)
+    warn_list: list[str] = []
+    names, kinds, angles, corners, images = [], [], [], [], []
+    size = None
+    for p in poses:
+        wpath = root / p["white"]
+        white = read_image(wpath)
+        if size is None:
+            size = (white.shape[1], white.shape[0])
+        c = detect_chessboard(white, inner)
+        if c is None:
+            msg = f"{wpath}: calibration target not found; pose left out"
+            warnings.warn(msg, UserWarning, stacklevel=2)
+            warn_list.append(msg)
+            continue
+        # board y down the image: the physical orientation of an (even + even) board
+        col = c[(target.rows - 1) * target.cols] - c[0]
+        if col[1] < 0 and (target.cols + target.rows) % 2 == 0:
+            c = c[::-1].copy()
+        names.append(str(p.get("white")))
+        kinds.append(str(p.get("kind", "free")))
+        angles.append(p.get("table_angle"))
+        corners.append(c)
+        images.append((root / p["grid"], white))
+    if len(corners) < MIN_VIEWS:
+        raise NurbscanError(f"{calib_dir}: the target was found in {len(corners)} image(s); "
+                            f"at least {MIN_VIEWS} are needed")
+    dc = (camera_pitch, camera_pitch) if camera_pitch else _pitch(
+        doc, "camera", size[0], DEFAULT_CAMERA_SENSOR_WIDTH_MM)
+    dp = (projector_pitch, projector_pitch) if projector_pitch else _pitch(
+        doc, "projector", pattern.width, DEFAULT_PROJECTOR_SENSOR_WIDTH_MM)
+    _say(progress, f"[{time.perf_counter() - t0:6.1f} s] target found in {len(corners)} of "
+         f"{len(poses)} white images")
+    cam = calibrate_camera(corners, board, size, *dc, names=names)
+    med = float(np.median(cam.per_view_rms))
+    bad = np.flatnonzero(cam.per_view_rms > max(5.0 * med, 0.5))
+    if len(bad) and len(corners) - len(bad) >= MIN_VIEWS:
+        for i in bad:
+            msg = (f"{names[i]}: chessboard corners inconsistent (RMS {cam.per_view_rms[i]:.2f} "
+                   f"px against a median {med:.2f} px); pose left out")
+            warnings.warn(msg, UserWarning, stacklevel=2)
+            warn_list.append(msg)
+        keep = [i for i in range(len(corners)) if i not in set(bad.tolist())]
+        names, kinds, angles, corners, images = ([lst[i] for i in keep] for lst in
+                                                 (names, kinds, angles, corners, images))
+        cam = calibrate_camera(corners, board, size, *dc, names=names)
+    _say(progress, f"[{time.perf_counter() - t0:6.1f} s] camera: RMS {cam.rms:.4f} px")
+
+    obs = []
+    rng = np.random.default_rng(0)
+    for i, (gpath, white) in enumerate(images):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            det = detect_grid(read_image(gpath), pattern, white=white)
+        o = edge_observations(det, cam.kc, cam.rvecs[i], cam.tvecs[i], target, i, dc,
+                              max_points_per_view, rng=rng)
+        if len(o.view) < 50:
+            msg = f"{gpath}: projected grid not decoded on the target; pose not used for the " \
+                  "projector"
+            warnings.warn(msg, UserWarning, stacklevel=2)
+            warn_list.append(msg)
+        obs.append(o)
+        _say(progress, f"[{time.perf_counter() - t0:6.1f} s] {gpath.name}: "
+             f"{len(det.band)} lines, {len(o.view)} observations")
+    proj = _concat(obs)
+    kp0, rp0, tp0 = init_projector(cam.kc, cam.rvecs, cam.tvecs, proj, dc, dp,
+                                   (pattern.width, pattern.height))
+    st = BundleState(kc=cam.kc, rvecs=cam.rvecs, tvecs=cam.tvecs, kp=kp0, rp=rp0, tp=tp0)
+    st = run_bundle(st, cam.corners, proj, dc, dp)
+    r = projector_residuals(st.kc, st.rvecs, st.tvecs, st.kp, st.rp, st.tp, proj, dc, dp,
+                            st.shrink)
+    sigma = 1.4826 * np.median(np.abs(r))
+    good = np.abs(r) < max(5 * sigma, 0.05)
+    n_out = int(np.sum(~good))
+    if n_out:
+        proj = ProjObs(proj.pixels[good], proj.value[good], proj.axis[good], proj.view[good],
+                       proj.sign[good])
+        st = run_bundle(st, cam.corners, proj, dc, dp)
+    _say(progress, f"[{time.perf_counter() - t0:6.1f} s] bundle: camera RMS "
+         f"{st.cost['camera_rms_px']:.4f} px, projector RMS {st.cost['projector_rms_px']:.4f} "
+         f"px ({len(proj.view)} observations, {n_out} outliers left out)")
+
+    # turntable
+    tt_idx = [i for i, k in enumerate(kinds) if k == "turntable" and angles[i] is not None]
+    turntable = None
+    tt_fig: dict[str, Any] = {}
+    if len(tt_idx) >= 2:
+        th = np.array([float(angles[i]) for i in tt_idx])
+        used = []  # corners of each turntable view, those left out of the camera fit NaN
+        for i in tt_idx:
+            c = np.full_like(corners[i], np.nan)
+            m = cam.corners.view == i
+            c[_corner_index(cam.corners.board[m], target)] = cam.corners.pixels[m]
+            used.append(c)
+        tt = fit_turntable(st.rvecs[tt_idx], st.tvecs[tt_idx], th, board, used, st.kc, *dc)
+        # table top: the board's lower edge rests on the table
+        x0, x1 = -target.square - target.margin, target.cols * target.square + target.margin
+        y1 = target.rows * target.square + target.margin
+        bottom = rotmats(tt.rvec0) @ np.array([(x0 + x1) / 2, y1, 0.0]) + tt.tvec0
+        point = tt.point + tt.direction * float(tt.direction @ (bottom - tt.point))
+        turntable = Turntable(point=point, direction=tt.direction)
+        tt_fig = {"views": len(tt_idx), "rms_px": tt.rms_px,
+                  "table_angle_rms_deg": tt.angle_rms_deg}
+    else:
+        msg = "no turntable poses (fewer than 2 with a table angle): turntable not calibrated"
+        warnings.warn(msg, UserWarning, stacklevel=2)
+        warn_list.append(msg)
+        turntable = Turntable(point=np.array([0.0, 0.0, 600.0]), direction=np.array([0, -1.0, 0]))
+
+    camera = Camera(width=size[0], height=size[1], f=float(st.kc[0]), cx=float(st.kc[1]),
+                    cy=float(st.kc[2]), dx=dc[0], dy=dc[1], sx=float(st.kc[3]),
+                    k1=float(st.kc[4]), R=np.eye(3), T=np.zeros(3), name="camera")
+    projector = Projector(width=pattern.width, height=pattern.height, f=float(st.kp[0]),
+                          cx=float(st.kp[1]), cy=float(st.kp[2]), dx=dp[0], dy=dp[1],
+                          sx=float(st.kp[3]), k1=float(st.kp[4]), R=rotmats(st.rp),
+                          T=np.asarray(st.tp, float), name="projector")
+    rig = Rig(camera=camera, projector=projector, turntable=turntable)
+
+    rc = camera_residuals(st.kc, st.rvecs, st.tvecs, cam.corners, *dc)
+    rpj = projector_residuals(st.kc, st.rvecs, st.tvecs, st.kp, st.rp, st.tp, proj, dc, dp,
+                              st.shrink)
+    P = len(names)
+    cres = [rc[cam.corners.view == i] for i in range(P)]
+    pres = [rpj[proj.view == i] for i in range(P)]
+    per_view = []
+    for i in range(P):
+        per_view.append({
+            "image": names[i], "kind": kinds[i], "table_angle": angles[i],
+            "camera_rms_px": float(np.sqrt(np.mean(np.sum(cres[i]**2, axis=1)))),
+            "projector_rms_px": float(np.sqrt(np.mean(pres[i]**2))) if len(pres[i]) else None,
+            "projector_observations": int(len(pres[i])),
+        })
+    figures = {
+        "camera_rms_px": float(np.sqrt(np.mean(np.sum(rc**2, axis=1)))),
+        "camera_max_px": float(np.max(np.linalg.norm(rc, axis=1))),
+        "projector_rms_px": float(np.sqrt(np.mean(rpj**2))),
+        "projector_max_px": float(np.max(np.abs(rpj))),
+        "projector_observations": int(len(rpj)),
+        "projector_outliers": n_out,
+        "edge_bias_projector_px": {"x": float(st.shrink[0]), "y": float(st.shrink[1]),
+                                   "note": "falling band edges read +bias, rising -bias"},
+        "camera_init_rms_px": float(cam.rms),
+        "views_used": P, "views_given": len(poses),
+        "pixel_pitch_mm": {"camera": list(dc), "projector": list(dp)},
+        "turntable": tt_fig,
+        "per_view": per_view,
+        "time_s": time.perf_counter() - t0,
+    }
+    return CalibrationResult(
+        rig=rig, views=names, kinds=kinds, table_angles=angles, kc=st.kc, kp=st.kp, rp=st.rp,
+        tp=st.tp, rvecs=st.rvecs, tvecs=st.tvecs, figures=figures, corner_residuals=cres,
+        corner_pixels=[cam.corners.pixels[cam.corners.view == i] for i in range(P)],
+        proj_residuals=pres,
+        proj_pixels=[proj.pixels[proj.view == i] for i in range(P)], warnings=warn_list)
+
+
+# ---------------------------------------------------------------------------------- figures
+
+
+def _cam_params(cam) -> tuple[np.ndarray, tuple[float, float]]:
+    return (np.array([cam.f, cam.cx, cam.cy, cam.sx, cam.k1], float),
+            (float(cam.dx), float(cam.dy)))
+
+
+def _line_distance(p1, a1, p2) -> float:
+    d = np.asarray(p2, float) - np.asarray(p1, float)
+    return float(np.linalg.norm(d - (d @ a1) * a1))
+
+
+def compare_rigs(estimated, true) -> dict:
+    """Errors of an estimated rig against the true one (the figures of issue 6).
+
+    Focal lengths are compared in pixels (``f sx / dx`` and ``f / dy``: f and the pitch are not
+    separately identifiable) and k1 as ``k1 dy^2`` (px^-2), so that rigs with different pitch
+    conventions compare fairly.
+
+    Returns
+    -------
+    dict
+        ``camera`` / ``projector``: ``f_rel_err`` (largest relative error of the two pixel focal
+        lengths), ``principal_point_err_px``, ``k1_rel_err``; ``relative_translation_err_mm``
+        and ``relative_rotation_err_deg`` (camera -> projector transform; the rig frames are
+        the cameras' so the camera's own pose is also compared);
+        ``turntable_direction_err_deg``, ``turntable_axis_distance_mm`` (largest distance of
+        the estimated axis from the true one over the table-top disc: the true point and the
+        points 100 mm along the axis), ``turntable_point_err_mm`` (along the axis).
+    """
+    out: dict[str, Any] = {}
+    for name in ("camera", "projector"):
+        e, t = getattr(estimated, name), getattr(true, name)
+        fe = np.array([e.f * e.sx / e.dx, e.f / e.dy])
+        ft = np.array([t.f * t.sx / t.dx, t.f / t.dy])
+        k1e, k1t = e.k1 * e.dy**2, t.k1 * t.dy**2
+        out[name] = {
+            "f_px": fe.tolist(), "f_px_true": ft.tolist(),
+            "f_rel_err": float(np.max(np.abs(fe / ft - 1))),
+            "principal_point_err_px": float(np.hypot(e.cx - t.cx, e.cy - t.cy)),
+            "sx_err": float(e.sx - t.sx),
+            "k1_rel_err": float(abs(k1e / k1t - 1)) if k1t != 0 else float(abs(k1e)),
+        }
+
+    def pose(c):
+        return np.asarray(c.R, float), np.asarray(c.T, float)
+
+    Rce, Tce = pose(estimated.camera)
+    Rct, Tct = pose(true.camera)
+    Rpe, Tpe = pose(estimated.projector)
+    Rpt, Tpt = pose(true.projector)
+    # camera -> projector: x_p = Rp Rc^T (x_c - Tc) + Tp
+    Rre, Rrt = Rpe @ Rce.T, Rpt @ Rct.T
+    Tre, Trt = Tpe - Rre @ Tce, Tpt - Rrt @ Tct
+    dR = Rre @ Rrt.T
+    out["relative_rotation_err_deg"] = float(np.degrees(np.arccos(np.clip(
+        (np.trace(dR) - 1) / 2, -1, 1))))
+    out["relative_translation_err_mm"] = float(np.linalg.norm(Tre - Trt))
+    out["baseline_mm"] = float(np.linalg.norm(Rrt.T @ Trt))
+    te, tt = estimated.turntable, true.turntable
+    ae, at = np.asarray(te.direction, float), np.asarray(tt.direction, float)
+    out["turntable_direction_err_deg"] = float(np.degrees(np.arccos(np.clip(ae @ at, -1, 1))))
+    pe, pt = np.asarray(te.point, float), np.asarray(tt.point, float)
+    out["turntable_axis_distance_mm"] = max(_line_distance(pe, ae, pt + s * at)
+                                            for s in (0.0, 100.0))
+    out["turntable_point_err_mm"] = float(np.linalg.norm(pe - pt))
+    out["turntable_height_err_mm"] = float(at @ (pe - pt))
+    return out
+
+
+def triangulate_edges(rig, pixels: np.ndarray, value: np.ndarray, axis: np.ndarray,
+                      iterations: int = 8) -> np.ndarray:
+    """Triangulate band-edge points: camera ray meets the projector's light surface.
+
+    A point ``X = s d`` of the camera ray (rig frame = camera frame) lies on the light surface
+    of the projector coordinate ``v`` (axis ``a``) where the projector's projection of X has
+    ``a``-coordinate ``v`` (method.md section 5, step 2, the exact form): a 1-D root in the
+    depth ``s``, solved by the secant method for all points at once.
+
+    Parameters
+    ----------
+    rig : nurbscan.camera.Rig
+    pixels : ndarray (K, 2) camera px; value : ndarray (K,) projector px; axis : ndarray (K,)
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
+        Points in the rig frame, mm (NaN where the iteration fails).
+    """
+    kc, dc = _cam_params(rig.camera)
+    kp, dp = _cam_params(rig.projector)
+    d = back_project_local(np.asarray(pixels, float), kc, *dc)
+    Rp, Tp = np.asarray(rig.projector.R, float), np.asarray(rig.projector.T, float)
+    ax = np.asarray(axis)[:, None]
+
+    def g(s):
+        X = d * s[:, None]
+        uv = project_local(X @ Rp.T + Tp, kp, *dp)
+        return np.take_along_axis(uv, ax, axis=1)[:, 0] - value
+
+    s0 = np.full(len(d), 500.0)
+    s1 = np.full(len(d), 700.0)
+    g0, g1 = g(s0), g(s1)
+    for _ in range(iterations):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s2 = s1 - g1 * (s1 - s0) / (g1 - g0)
+        s2 = np.where(np.isfinite(s2), s2, s1)
+        s0, g0, s1 = s1, g1, s2
+        g1 = g(s1)
+    return d * s1[:, None]
+
+
+def held_out_error(rig_est, rig_true, det, board_R, board_T, max_points: int = 20000,
+                   edge_bias=None) -> dict:
+    """Triangulation error on a target pose left out of the calibration.
+
+    Edge points of the pose's decoded grid are triangulated with the estimated rig; the truth
+    for a camera pixel is where the TRUE camera ray through it meets the TRUE board plane
+    (board -> rig pose ``board_R``, ``board_T``). Points off the board are dropped.
+    ``edge_bias`` (2,), optional: the band-edge bias per axis found by the calibration
+    (``figures["edge_bias_projector_px"]``); edge coordinates are corrected by it first.
+
+    Returns
+    -------
+    dict
+        ``rms_mm`` (3-D distance), ``plane_rms_mm`` (distance to the true plane), ``points``.
+    """
+    px = np.stack([np.asarray(det.x, float), np.asarray(det.y, float)], axis=1)
+    line = np.asarray(det.line)
+    axis = np.asarray(det.direction)[line]
+    value = np.asarray(det.coord, float)[line]
+    if edge_bias is not None:
+        value = value + (2.0 * np.asarray(det.edge)[line] - 1.0) * np.asarray(edge_bias)[axis]
+    if len(px) > max_points:
+        idx = np.random.default_rng(0).choice(len(px), max_points, replace=False)
+        px, axis, value = px[idx], axis[idx], value[idx]
+    X = triangulate_edges(rig_est, px, value, axis)
+    kt, dt = _cam_params(rig_true.camera)
+    dirs = back_project_local(px, kt, *dt)
+    Rc, Tc = np.asarray(rig_true.camera.R, float), np.asarray(rig_true.camera.T, float)
+    # true camera ray in the rig frame (true camera pose may differ from identity)
+    o = -Rc.T @ Tc
+    dw = dirs @ Rc
+    n = np.asarray(board_R, float)[:, 2]
+    s = (n @ (np.asarray(board_T, float) - o)) / (dw @ n)
+    Xt = o + dw * s[:, None]
+    Xb = (Xt - board_T) @ np.asarray(board_R, float)
+    ok = np.all(np.isfinite(X), axis=1) & np.isfinite(s)
+    err = np.linalg.norm(X - Xt, axis=1)[ok]
+    # robust: drop gross decoding errors (> 1 mm) and report how many
+    gross = err > 1.0
+    e = err[~gross]
+    pl = ((X[ok] - board_T) @ n)[~gross]
+    return {"rms_mm": float(np.sqrt(np.mean(e**2))), "plane_rms_mm": float(np.sqrt(np.mean(
+        pl**2))), "median_mm": float(np.median(e)), "points": int(len(e)),
+            "gross_errors": int(np.sum(gross)), "board_extent_mm": float(np.ptp(Xb[:, 0]))}
+
+
+def residual_image(result: CalibrationResult, size: tuple[int, int], tile: int = 384,
+                   cols: int = 4) -> np.ndarray:
+    """A picture of the residuals, one panel per pose (uint8 RGB).
+
+    Camera: each chessboard corner as a dot with its reprojection error vector scaled so that
+    the largest is 10 % of the panel (green). Projector: each observation's residual as a dot
+    coloured from blue (0) to red (3 x the projector RMS or more). The scale is written on
+    each panel.
+    """
+    import cv2
+
+    P = len(result.views)
+    rows = math.ceil(P / cols)
+    w, h = size
+    sc = tile / w
+    th = int(round(h * sc))
+    canvas = np.full((rows * th, cols * tile, 3), 255, np.uint8)
+    cmax = max(float(np.max(np.linalg.norm(np.concatenate(result.corner_residuals), axis=1))),
+               1e-9)
+    arrow = 0.1 * tile / cmax
+    prms = max(result.figures["projector_rms_px"], 1e-9)
+    for i in range(P):
+        r0, c0 = divmod(i, cols)
+        panel = np.full((th, tile, 3), 245, np.uint8)
+        pp = result.proj_pixels[i] * sc
+        pr = np.clip(np.abs(result.proj_residuals[i]) / (3 * prms), 0, 1)
+        col = np.stack([255 * pr, np.zeros_like(pr), 255 * (1 - pr)], axis=1).astype(np.uint8)
+        ij = np.round(pp).astype(int)
+        ok = (ij[:, 0] >= 0) & (ij[:, 0] < tile) & (ij[:, 1] >= 0) & (ij[:, 1] < th)
+        panel[ij[ok, 1], ij[ok, 0]] = col[ok]
+        for (x, y), (ex, ey) in zip(result.corner_pixels[i] * sc, result.corner_residuals[i],
+                                    strict=True):
+            p0 = (int(round(x)), int(round(y)))
+            p1 = (int(round(x + ex * arrow)), int(round(y + ey * arrow)))
+            cv2.arrowedLine(panel, p0, p1, (0, 150, 0), 1, tipLength=0.3)
+            cv2.circle(panel, p0, 1, (0, 0, 0), -1)
+        rms = result.figures["per_view"][i]["camera_rms_px"]
+        label = f"{i}: {Path(result.views[i]).stem} cam {rms:.3f} px"
+        cv2.putText(panel, label, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (0, 0, 0), 1)
+        cv2.putText(panel, f"arrows x{arrow / sc:.0f}", (4, th - 6), cv2.FONT_HERSHEY_SIMPLEX,
+                    0.38, (0, 0, 0), 1)
+        cv2.rectangle(panel, (0, 0), (tile - 1, th - 1), (180, 180, 180), 1)
+        canvas[r0 * th:(r0 + 1) * th, c0 * tile:(c0 + 1) * tile] = panel
+    return canvas
