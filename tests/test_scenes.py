@@ -206,6 +206,31 @@ def test_teapot_rays_land_on_the_exact_surface(teapot):
     assert h.sum() >= 0.998 * len(ray)
 
 
+def test_mesh_cast_matches_trimesh_ray_cast(teapot):
+    # oracle: trimesh's Embree wrapper (float64 plane / ray locations), first hits
+    o, d = _random_rays(teapot, 20000, seed=3)
+    ray, face, t, bary = teapot.mesh_cast(o, d)
+    m = teapot.mesh()
+    tri, ray2, loc = m.ray.intersects_id(o, d, multiple_hits=False, return_locations=True)
+    assert len(ray) > 8000 and len(ray2) > 8000
+    f1 = np.full(len(o), -1)
+    f1[ray] = face
+    f2 = np.full(len(o), -1)
+    f2[ray2] = tri
+    # the same rays hit the same faces (a grazing ray or two may differ in float32)
+    assert np.mean(f1[f1 >= 0] == f2[f1 >= 0]) > 0.999 and abs(len(ray) - len(ray2)) <= 2
+    same = (f1 == f2) & (f1 >= 0)
+    t1 = np.full(len(o), np.nan)
+    t1[ray] = t
+    t2 = np.full(len(o), np.nan)
+    t2[ray2] = np.einsum("ij,ij->i", loc - o[ray2], d[ray2])
+    np.testing.assert_allclose(t1[same], t2[same], atol=1e-9)
+    # barycentric coordinates: a convex combination reproducing the hit (float32 precision)
+    assert np.all(bary >= 0) and np.allclose(bary.sum(axis=1), 1.0)
+    p = np.einsum("ni,nij->nj", bary, m.vertices[m.faces[face]])
+    assert np.abs(p - (o[ray] + t[:, None] * d[ray])).max() < 5e-3
+
+
 def test_teapot_refine_from_perturbed_start(teapot):
     """refine() converges from a start displaced along the ray and in (u, v), and across borders."""
     rng = np.random.default_rng(2)

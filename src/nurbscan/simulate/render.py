@@ -299,10 +299,12 @@ class BandProfile:
         self.table = np.ascontiguousarray(np.concatenate([c2, c1, val, slope], axis=1))
 
     def _locate(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        t = (np.nan_to_num(np.asarray(u, float), nan=self.lo) - self.lo) * self.res
-        t = np.clip(t, 0.0, self.n - 1.0)
+        u = np.asarray(u, float)
+        t = (np.where(np.isnan(u), self.lo, u) - self.lo) * self.res  # +-inf: clipped below
+        np.clip(t, 0.0, self.n - 1.0, out=t)
         i = np.minimum(t.astype(np.int64), self.n - 2)
-        return self.table[i], ((t - i) * self.h)[..., None]
+        # np.take: a row gather about twice as fast as fancy indexing
+        return np.take(self.table, i, axis=0), ((t - i) * self.h)[..., None]
 
     def sample(self, u: np.ndarray) -> np.ndarray:
         """V(u), shape u.shape + (3,)."""
@@ -333,20 +335,33 @@ class BandProfile:
         q = (a - b) / 2. Where the smaller width is below 0.02 px the box of the larger is
         used (error < 1e-4).
         """
-        a = np.asarray(a, float)
-        b = np.asarray(b, float)
+        shape = np.shape(u)
+        u = np.asarray(u, float).reshape(-1)
+        a = np.asarray(a, float).reshape(-1)
+        b = np.asarray(b, float).reshape(-1)
         big, small = np.maximum(a, b), np.minimum(a, b)
-        out = np.empty(np.shape(u) + (3,))
         thin = small < 0.02
-        if thin.any():
-            out[thin] = self.box(u[thin], big[thin])
-        k = ~thin
-        if k.any():
-            uk, p, q = u[k], 0.5 * (big[k] + small[k]), 0.5 * (big[k] - small[k])
-            num = (self._c2(uk + p) - self._c2(uk + q) - self._c2(uk - q)
-                   + self._c2(uk - p))
-            out[k] = num / (big[k] * small[k])[..., None]
-        return np.clip(out, 0.0, None)
+        # index lists and np.take instead of boolean masks (row gathers twice as fast); the
+        # common all-thick / all-thin cases need no gather at all
+        ti = np.flatnonzero(thin)
+        if ti.size == u.size:
+            return np.clip(self.box(u, big), 0.0, None).reshape(shape + (3,))
+        out = np.empty((u.size, 3))
+        if ti.size:
+            out[ti] = self.box(u[ti], big[ti])
+        if ti.size == 0:
+            uk, bk, sk = u, big, small
+        else:
+            ki = np.flatnonzero(~thin)
+            uk, bk, sk = u[ki], big[ki], small[ki]
+        p, q = 0.5 * (bk + sk), 0.5 * (bk - sk)
+        num = (self._c2(uk + p) - self._c2(uk + q) - self._c2(uk - q) + self._c2(uk - p))
+        num /= (bk * sk)[:, None]
+        if ti.size == 0:
+            out = num
+        else:
+            out[ki] = num
+        return np.clip(out, 0.0, None, out=out).reshape(shape + (3,))
 
 
 class PatternLight:
@@ -430,12 +445,15 @@ def _norm(a: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("ij,ij->i", a, a))
 
 
-def _trace(ctx: _Context, pix: np.ndarray) -> dict[str, np.ndarray]:
+def _trace(ctx: _Context, pix: np.ndarray,
+           out: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """Trace camera rays through the pixel positions ``pix`` (N, 2): geometry and shading.
 
     Returns per ray: ``valid`` (hit anything), ``sid``, ``x_obj``, ``x_rig``, ``proj`` (N, 2),
     ``lit``, ``depth``, and the shading factors ``gain`` and ``amb`` (N, 3) of the radiance
-    L_j = gain_j P_j + amb_j (module notes, step 6), and ``albedo`` (N, 3).
+    L_j = gain_j P_j + amb_j (module notes, step 6), and ``albedo`` (N, 3). With ``out``
+    (arrays of those names and shapes, filled with the no-hit defaults: NaN, 0, False,
+    ``BACKGROUND_ID``) the results are written there instead (no temporary arrays).
     """
     s = ctx.settings
     n = pix.shape[0]
@@ -448,11 +466,15 @@ def _trace(ctx: _Context, pix: np.ndarray) -> dict[str, np.ndarray]:
     hit = _cast(ctx.scene, o_obj, d_obj)
     valid = np.asarray(hit["hit"], bool).copy()
     dist = np.where(valid, np.asarray(hit["t"], float), np.inf)
-    out = {"valid": valid, "sid": np.full(n, BACKGROUND_ID, np.int32),
-           "x_obj": np.full((n, 3), np.nan), "x_rig": np.full((n, 3), np.nan),
-           "proj": np.full((n, 2), np.nan), "lit": np.zeros(n, bool),
-           "depth": np.full(n, np.nan), "gain": np.zeros((n, 3), np.float32),
-           "amb": np.zeros((n, 3), np.float32), "albedo": np.zeros((n, 3), np.float32)}
+    if out is None:
+        out = {"valid": valid, "sid": np.full(n, BACKGROUND_ID, np.int32),
+               "x_obj": np.full((n, 3), np.nan), "x_rig": np.full((n, 3), np.nan),
+               "proj": np.full((n, 2), np.nan), "lit": np.zeros(n, bool),
+               "depth": np.full(n, np.nan), "gain": np.zeros((n, 3), np.float32),
+               "amb": np.zeros((n, 3), np.float32), "albedo": np.zeros((n, 3), np.float32)}
+    else:  # the caller's arrays, holding the defaults above; ``valid`` is copied at the end
+        out = dict(out)
+        out["valid_view"], out["valid"] = out["valid"], valid
     on = np.zeros(n, bool)
     if s.table:
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -464,11 +486,11 @@ def _trace(ctx: _Context, pix: np.ndarray) -> dict[str, np.ndarray]:
         valid |= on
     idx = np.flatnonzero(valid)
     if idx.size == 0:
-        return out
+        return _done(out, valid)
     on_v = on[idx]
     sid = np.where(on_v, TABLE_ID, np.asarray(hit["surface_id"])[idx]).astype(np.int32)
-    x_obj = np.asarray(hit["points"], float)[idx]
-    nrm = np.asarray(hit["normals"], float)[idx]
+    x_obj = np.take(np.asarray(hit["points"], float), idx, axis=0)  # np.take: fast row gather
+    nrm = np.take(np.asarray(hit["normals"], float), idx, axis=0)
     if on_v.any():
         ti = idx[on_v]
         x_obj[on_v] = o_obj[ti] + tt[ti, None] * d_obj[ti]
@@ -520,6 +542,14 @@ def _trace(ctx: _Context, pix: np.ndarray) -> dict[str, np.ndarray]:
     out["gain"][idx] = (alb + spec[:, None]) * irr[:, None]
     out["amb"][idx] = alb * s.ambient
     out["albedo"][idx] = alb
+    return _done(out, valid)
+
+
+def _done(out: dict[str, np.ndarray], valid: np.ndarray) -> dict[str, np.ndarray]:
+    """Copy ``valid`` into the caller's array of :func:`_trace` (if any)."""
+    view = out.pop("valid_view", None)
+    if view is not None:
+        view[:] = valid
     return out
 
 
@@ -538,15 +568,14 @@ def _cast(scene, origins: np.ndarray, directions: np.ndarray) -> dict[str, np.nd
             inv = 1.0 / directions
             ta = (lo - origins) * inv
             tb = (hi - origins) * inv
-        tmin = np.nanmax(np.minimum(ta, tb), axis=1)
-        tmax = np.nanmin(np.maximum(ta, tb), axis=1)
+        tmin = np.fmax.reduce(np.minimum(ta, tb), axis=1)  # nanmax without its copies
+        tmax = np.fmin.reduce(np.maximum(ta, tb), axis=1)
         sel = np.flatnonzero(tmax >= np.maximum(tmin, 0.0))
     out = {"t": np.full(n, np.nan), "points": np.full((n, 3), np.nan),
            "normals": np.full((n, 3), np.nan), "surface_id": np.full(n, -1, np.int64),
            "hit": np.zeros(n, bool)}
     if sel.size:
-        r = scene.intersect(np.ascontiguousarray(origins[sel]),
-                            np.ascontiguousarray(directions[sel]))
+        r = scene.intersect(np.take(origins, sel, axis=0), np.take(directions, sel, axis=0))
         for key in out:
             out[key][sel] = r[key]
     return out
@@ -558,7 +587,8 @@ def _shadowed(scene, origin: np.ndarray, points: np.ndarray, cos_p: np.ndarray,
 
     A point X is shadowed when the ray from ``origin`` towards X meets the exact surface more
     than ``eps`` mm before X. With a meshed scene (``scene.mesh()``, the inscribed mesh that
-    ``intersect`` casts on, tolerance 0.2 mm) the first mesh hit settles most rays: a hit more
+    ``intersect`` casts on, tolerance 0.2 mm) the first mesh hit (``scene.mesh_cast``: one
+    Embree call for all rays) settles most rays: a hit more
     than 0.5 + 0.5 / cos mm before X is an occluder; a miss, or a hit beyond that margin, is
     resolved exactly by ``scene.intersect`` (Newton on the true surface) only when the hit is
     more than ``eps`` before X. Without a mesh every ray is cast exactly.
@@ -569,13 +599,18 @@ def _shadowed(scene, origin: np.ndarray, points: np.ndarray, cos_p: np.ndarray,
     o = np.broadcast_to(origin, d.shape)
     mesh_fn = getattr(scene, "mesh", None)
     if callable(mesh_fn):
-        mesh = mesh_fn()
-        tri, ray, loc = mesh.ray.intersects_id(np.ascontiguousarray(o), d,
-                                               multiple_hits=False, return_locations=True)
         tm = np.full(len(d), np.inf)
-        ray = np.asarray(ray, int)
-        if ray.size:
-            tm[ray] = _dot(np.asarray(loc, float) - o[ray], d[ray])
+        cast = getattr(scene, "mesh_cast", None)
+        if callable(cast):  # Embree directly: one call, no per-hit Python work
+            ray, _, tr, _ = cast(np.ascontiguousarray(o), d)
+            tm[ray] = tr
+        else:
+            tri, ray, loc = mesh_fn().ray.intersects_id(np.ascontiguousarray(o), d,
+                                                        multiple_hits=False,
+                                                        return_locations=True)
+            ray = np.asarray(ray, int)
+            if ray.size:
+                tm[ray] = _dot(np.asarray(loc, float) - o[ray], d[ray])
         margin = 0.5 + 0.5 / np.maximum(cos_p, 0.02)
         sure = tm < dist - margin
         unsure = np.flatnonzero(~sure & (tm < dist - eps))
@@ -615,19 +650,35 @@ def encode(linear: np.ndarray, settings: RenderSettings,
     """
     s = settings
     img = np.ascontiguousarray(linear, dtype=np.float32)
+    # in place, float32 throughout (the same operations, hence bits, as the plain expressions
+    # e + noise * sqrt(max(e, 0)) * N1 + noise * read_noise * N2, clip(e / full_well, 0, 1)^(1/g));
+    # few fresh arrays: each new 85 MB buffer costs its page faults
     if s.camera_blur > 0:
-        img = cv2.GaussianBlur(img, (0, 0), sigmaX=s.camera_blur, sigmaY=s.camera_blur,
-                               borderType=cv2.BORDER_REFLECT)
-    e = img * np.float32(s.exposure * s.full_well)
+        e = cv2.GaussianBlur(img, (0, 0), sigmaX=s.camera_blur, sigmaY=s.camera_blur,
+                             borderType=cv2.BORDER_REFLECT)
+        e *= np.float32(s.exposure * s.full_well)
+    else:
+        e = img * np.float32(s.exposure * s.full_well)
     if s.noise > 0 and rng is not None:
-        shot = np.sqrt(np.clip(e, 0, None))
-        e = e + np.float32(s.noise) * shot * rng.standard_normal(e.shape, dtype=np.float32)
-        e += np.float32(s.noise * s.read_noise) * rng.standard_normal(e.shape, dtype=np.float32)
-    v = np.clip(e / np.float32(s.full_well), 0.0, 1.0)
+        shot = np.clip(e, 0, None)
+        np.sqrt(shot, out=shot)
+        np.multiply(np.float32(s.noise), shot, out=shot)
+        buf = np.empty_like(e)
+        shot *= rng.standard_normal(dtype=np.float32, out=buf)
+        e += shot
+        del shot
+        rng.standard_normal(dtype=np.float32, out=buf)  # the read noise, same stream
+        np.multiply(np.float32(s.noise * s.read_noise), buf, out=buf)
+        e += buf
+        del buf
+    np.divide(e, np.float32(s.full_well), out=e)
+    np.clip(e, 0.0, 1.0, out=e)
     if s.gamma != 1:
-        v = v ** np.float32(1.0 / s.gamma)
+        np.power(e, np.float32(1.0 / s.gamma), out=e)
     top = 255 if s.bit_depth == 8 else 65535
-    return np.rint(v * top).astype(np.uint8 if s.bit_depth == 8 else np.uint16)
+    e *= np.float32(top)
+    np.rint(e, out=e)
+    return e.astype(np.uint8 if s.bit_depth == 8 else np.uint16)
 
 
 def noise_rng(seed: int, stream: int, kind: int) -> np.random.Generator:
@@ -674,13 +725,17 @@ def _neighbour_ok(valid, sid, lit, u, v, alb, jump) -> tuple[np.ndarray, np.ndar
 
     def ok(sl_a, sl_b):
         same = (valid[sl_a] == valid[sl_b]) & (cls[sl_a] == cls[sl_b]) & (lit[sl_a] == lit[sl_b])
-        same &= np.all(np.abs(alb[sl_a] - alb[sl_b]) < 1e-6, axis=-1)
+        aa, ab = alb[sl_a], alb[sl_b]
+        for c in range(alb.shape[-1]):  # per channel: np.all over a length-3 axis is slow
+            same &= np.abs(aa[..., c] - ab[..., c]) < 1e-6
         with np.errstate(invalid="ignore"):
             smooth = (np.abs(u[sl_a] - u[sl_b]) < jump) & (np.abs(v[sl_a] - v[sl_b]) < jump)
         return same & (smooth | ~lit[sl_a])
 
-    okx = ok((slice(None), slice(None, -1)), (slice(None), slice(1, None)))
-    oky = ok((slice(None, -1), slice(None)), (slice(1, None), slice(None)))
+    with ThreadPoolExecutor(max_workers=2) as pool:  # numpy releases the GIL: 2 threads
+        jx = pool.submit(ok, (slice(None), slice(None, -1)), (slice(None), slice(1, None)))
+        oky = ok((slice(None, -1), slice(None)), (slice(1, None), slice(None)))
+        okx = jx.result()
     return okx, oky
 
 
@@ -721,6 +776,7 @@ def render_view(scene, rig, pattern, angle: float = 0.0, settings: RenderSetting
                    proj_centre=np.asarray(rig.projector.center, float), albedo_fn=albedo)
     W, H = int(cam.width), int(cam.height)
     npx = W * H
+    n_workers = max(1, int(workers or os.cpu_count() or 1))
     # ---- pass 1: exact rays through the pixel centres
     valid = np.zeros(npx, bool)
     lit = np.zeros(npx, bool)
@@ -747,13 +803,13 @@ def render_view(scene, rig, pattern, angle: float = 0.0, settings: RenderSetting
     def centres(a: int) -> None:
         b = min(a + _CHUNK, npx)
         k = np.arange(a, b)
-        r = _trace(ctx, np.stack([k % W, k // W], axis=1).astype(float))
-        valid[a:b], lit[a:b], sid[a:b] = r["valid"], r["lit"], r["sid"]
-        x_obj[a:b], x_rig[a:b], proj[a:b], depth[a:b] = r["x_obj"], r["x_rig"], r["proj"], \
-            r["depth"]
-        gain[a:b], amb[a:b], albedo_px[a:b] = r["gain"], r["amb"], r["albedo"]
+        # written straight into the image's arrays (they hold the no-hit defaults)
+        _trace(ctx, np.stack([k % W, k // W], axis=1).astype(float), out={
+            "valid": valid[a:b], "lit": lit[a:b], "sid": sid[a:b], "x_obj": x_obj[a:b],
+            "x_rig": x_rig[a:b], "proj": proj[a:b], "depth": depth[a:b], "gain": gain[a:b],
+            "amb": amb[a:b], "albedo": albedo_px[a:b]})
 
-    pool = ThreadPoolExecutor(max_workers=max(1, int(workers or os.cpu_count() or 1)))
+    pool = ThreadPoolExecutor(max_workers=n_workers)
     with pool:
         list(pool.map(centres, range(0, npx, _CHUNK)))
     lap("centre_rays")
@@ -782,23 +838,24 @@ def render_view(scene, rig, pattern, angle: float = 0.0, settings: RenderSetting
     flat_smooth = smooth.ravel()
     sm_lit = np.flatnonzero(flat_smooth & lit)
     sm_dark = flat_smooth & ~lit
-    lin_white[flat_smooth] = gain[flat_smooth] + amb[flat_smooth]
-    lin_grid[sm_dark] = amb[sm_dark]
+    np.add(gain, amb, out=lin_white, where=flat_smooth[:, None])  # masked, without gathers
+    np.copyto(lin_grid, amb, where=sm_dark[:, None])
 
     def smooth_block(a: int) -> None:
         k = sm_lit[a:a + step_s]
         # central differences: (du/dx, dv/dx), (du/dy, dv/dy); the four neighbours are lit
         # (the image's border is traced exactly)
-        ux = 0.5 * (proj[k + 1] - proj[k - 1])
-        uy = 0.5 * (proj[k + W] - proj[k - W])
+        ux = 0.5 * (np.take(proj, k + 1, axis=0) - np.take(proj, k - 1, axis=0))
+        uy = 0.5 * (np.take(proj, k + W, axis=0) - np.take(proj, k - W, axis=0))
         us = proj[k, 0:1] + ux[:, 0:1] * soffs[:, 0] + uy[:, 0:1] * soffs[:, 1]
         vs = proj[k, 1:2] + ux[:, 1:2] * soffs[:, 0] + uy[:, 1:2] * soffs[:, 1]
         ju = np.stack([np.abs(ux[:, 0]), np.abs(uy[:, 0])], axis=1) / s.smooth_samples
         jv = np.stack([np.abs(ux[:, 1]), np.abs(uy[:, 1])], axis=1) / s.smooth_samples
         shp = us.shape + (2,)
         p = ctx.light.light_cell(us, vs, np.broadcast_to(ju[:, None], shp),
-                                 np.broadcast_to(jv[:, None], shp)).mean(axis=1)
-        lin_grid[k] = gain[k] * p + amb[k]
+                                 np.broadcast_to(jv[:, None], shp))
+        p = p[:, 0] if nss == 1 else p.mean(axis=1)  # the mean of one value is that value
+        lin_grid[k] = np.take(gain, k, axis=0) * p + np.take(amb, k, axis=0)
 
     # exact pixels: one traced ray per sub-sample
     ex = np.flatnonzero(exact.ravel())
@@ -819,7 +876,7 @@ def render_view(scene, rig, pattern, angle: float = 0.0, settings: RenderSetting
 
     step_s = max(_CHUNK // nss, 1)
     step_x = max(_CHUNK // (4 * ns), 1)
-    pool = ThreadPoolExecutor(max_workers=max(1, int(workers or os.cpu_count() or 1)))
+    pool = ThreadPoolExecutor(max_workers=n_workers)
     with pool:
         jobs = [pool.submit(smooth_block, a) for a in range(0, sm_lit.size, step_s)]
         n_smooth = len(jobs)
@@ -835,8 +892,12 @@ def render_view(scene, rig, pattern, angle: float = 0.0, settings: RenderSetting
     mix = np.asarray(s.mixing, np.float32)
     lin_grid = cv2.transform(lin_grid.reshape(H, W, 3), mix)  # per pixel: M @ rgb
     lin_white = cv2.transform(lin_white.reshape(H, W, 3), mix)
-    grid = encode(lin_grid, s, noise_rng(seed, stream, 0))
-    white = encode(lin_white, s, noise_rng(seed, stream, 1))
+    # the two images' sensors are independent (own generators): one thread each
+    pool = ThreadPoolExecutor(max_workers=min(2, n_workers))
+    with pool:
+        job = pool.submit(encode, lin_white, s, noise_rng(seed, stream, 1))
+        grid = encode(lin_grid, s, noise_rng(seed, stream, 0))
+        white = job.result()
     lap("sensor")
     truth = {
         "depth": depth.reshape(shape),

@@ -8,7 +8,8 @@ z = 0). A scene offers
   surface, per face the surface id, per vertex the surface parameters), for a fast ray cast;
 * :meth:`Scene.refine` - ray / exact-surface intersection by Newton's method started from the
   mesh hit, to a residual far below 1 um;
-* :meth:`Scene.intersect` - mesh ray cast (Embree through trimesh) followed by :meth:`refine`;
+* :meth:`Scene.intersect` - mesh ray cast (Embree, :meth:`Scene.mesh_cast`) followed by
+  :meth:`refine`;
 * :meth:`Scene.closest_point` - the exact closest point on the true surface (the ground truth of
   the paper's Table I);
 * :meth:`Scene.sample_surface`, :meth:`Scene.to_dict` / :func:`scene_from_dict`.
@@ -209,7 +210,8 @@ class Scene:
         """Point and derivatives of surface ``k``.
 
         Returns ``[S, Su, Sv]`` (order 1) or ``[S, Su, Sv, Suu, Suv, Svv]`` (order 2),
-        each (n, 3) mm (per unit parameter).
+        each (n, 3) mm (per unit parameter); with order 0 ``[S]`` (or more: callers take
+        what they need).
         """
         raise NotImplementedError
 
@@ -249,7 +251,7 @@ class Scene:
         nout = {0: 1, 1: 3, 2: 6}[order]
         out = [np.full((sid.size, 3), np.nan) for _ in range(nout)]
         for k, idx in _groups(sid, self.n_surfaces):
-            vals = self._eval(k, uv[idx, 0], uv[idx, 1], max(order, 1))
+            vals = self._eval(k, uv[idx, 0], uv[idx, 1], order)  # may give more
             for o, val in zip(out, vals[:nout], strict=False):
                 o[idx] = val
         return out
@@ -273,9 +275,30 @@ class Scene:
             n[idx] = self._normals_k(k, uv[idx])
         return n
 
+    def _points_normals(self, surface_id, uv):
+        """:meth:`surface_points` and :meth:`surface_normals` together, from one evaluation of
+        ``S, Su, Sv`` per surface (the same values), shapes (N, 3) and (N, 3)."""
+        if type(self)._normals_k is not Scene._normals_k:  # a scene with its own normals
+            return self.surface_points(surface_id, uv), self.surface_normals(surface_id, uv)
+        sid = np.asarray(surface_id, dtype=np.int64).reshape(-1)
+        uv = np.asarray(uv, dtype=float).reshape(-1, 2)
+        pts = np.full((sid.size, 3), np.nan)
+        nrm = np.full((sid.size, 3), np.nan)
+        for k, idx in _groups(sid, self.n_surfaces):
+            uvk = uv[idx]
+            sk, su, sv = self._eval(k, uvk[:, 0], uvk[:, 1], 1)[:3]
+            pts[idx] = sk
+            nrm[idx] = self._normals_from(k, uvk, su, sv)
+        return pts, nrm
+
     def _normals_k(self, k, uv):
+        _, su, sv = self._eval(k, uv[:, 0], uv[:, 1], 1)[:3]
+        return self._normals_from(k, uv, su, sv)
+
+    def _normals_from(self, k, uv, su, sv):
+        """Unit outward normals of surface ``k`` from its derivatives at ``uv`` (see
+        :meth:`surface_normals` for the degenerate points)."""
         u0, u1, v0, v1 = self._domain(k)
-        _, su, sv = self._eval(k, uv[:, 0], uv[:, 1], 1)
         c = np.cross(su, sv)
         size = _dot(su, su) + _dot(sv, sv)
         bad = ~(np.linalg.norm(c, axis=1) > 1e-10 * np.maximum(size, 1e-300))
@@ -379,6 +402,80 @@ class Scene:
         uv = np.einsum("ni,nij->nj", bary, m.metadata["vertex_uv"][fv])
         return m.metadata["face_surface_id"][fi], uv
 
+    def _ray_engine(self, tol):
+        """The Embree scene of ``mesh(tol)`` (cached): ``(scene, origin)`` with the vertices
+        shifted by ``origin`` (the mesh's centre, for float32 precision), or None without
+        ``embreex`` (then trimesh's ray module is used)."""
+        cache = self.__dict__.setdefault("_embree_cache", {})
+        if tol not in cache:
+            try:
+                from embreex import rtcore_scene
+                from embreex.mesh_construction import TriangleMesh
+            except ImportError:  # pragma: no cover - embreex is a dependency
+                cache[tol] = None
+            else:
+                m = self.mesh(tol)
+                origin = 0.5 * (m.vertices.min(axis=0) + m.vertices.max(axis=0))
+                sc = rtcore_scene.EmbreeScene()
+                TriangleMesh(scene=sc, vertices=(m.vertices - origin).astype(np.float32),
+                             indices=np.ascontiguousarray(m.faces, dtype=np.int32))
+                cache[tol] = (sc, origin)
+        return cache[tol]
+
+    def mesh_cast(self, origins, directions, tolerance_mm=0.2):
+        """First hits of rays on :meth:`mesh` (Embree, one call for all rays).
+
+        Parameters
+        ----------
+        origins : ndarray, shape (N, 3)
+            Ray origins (mm).
+        directions : ndarray, shape (N, 3)
+            Unit ray directions.
+
+        Returns
+        -------
+        ray : ndarray of int, shape (M,)
+            Indices of the rays that hit the mesh.
+        face : ndarray of int, shape (M,)
+            Hit faces.
+        t : ndarray, shape (M,)
+            Distance along the ray (mm): the ray / face-plane intersection in float64 (Embree
+            works in float32; its distance is used for faces edge-on to the ray).
+        bary : ndarray, shape (M, 3)
+            Barycentric coordinates of the hit in the face (from Embree, float32 precision).
+        """
+        o, d = _as_rays(origins, directions)
+        tol = _positive(tolerance_mm, "mesh tolerance_mm")
+        m = self.mesh(tol)
+        eng = self._ray_engine(tol)
+        if eng is None:  # pragma: no cover - embreex is a dependency
+            tri, ray, loc = m.ray.intersects_id(o, d, multiple_hits=False,
+                                                return_locations=True)
+            tri, ray = np.asarray(tri, np.int64), np.asarray(ray, np.int64)
+            loc = np.asarray(loc, float).reshape(-1, 3)
+            bary = trimesh.triangles.points_to_barycentric(m.vertices[m.faces[tri]], loc)
+            bary = np.clip(np.nan_to_num(bary, nan=1.0 / 3.0), 0.0, 1.0)
+            bary /= bary.sum(axis=1, keepdims=True)
+            return ray, tri, _dot(loc - o[ray], d[ray]), bary
+        sc, origin = eng
+        r = sc.run((o - origin).astype(np.float32), d.astype(np.float32), output=1)
+        prim = np.asarray(r["primID"])
+        ray = np.flatnonzero(prim >= 0)
+        tri = prim[ray].astype(np.int64)
+        fu = np.asarray(r["u"], float)[ray]
+        fv = np.asarray(r["v"], float)[ray]
+        bary = np.clip(np.column_stack([1.0 - fu - fv, fu, fv]), 0.0, 1.0)
+        bary /= bary.sum(axis=1, keepdims=True)
+        # distance to the face's plane in float64 (as trimesh's planes_lines)
+        nrm = np.take(m.face_normals, tri, axis=0)
+        dn = _dot(np.take(d, ray, axis=0), nrm)
+        v0 = np.take(m.vertices, m.faces[tri, 0], axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = _dot(v0 - np.take(o, ray, axis=0), nrm) / dn
+        flat = ~(np.abs(dn) > 1e-12) | ~np.isfinite(t)
+        t[flat] = np.asarray(r["tfar"], float)[ray[flat]]
+        return ray, tri, t, bary
+
     def _candidates_near(self, points, k):
         """Surface ids (N, k) and parameters (N, k, 2) of the k nearest mesh vertices.
 
@@ -462,8 +559,7 @@ class Scene:
         pts = np.full((n, 3), np.nan)
         nrm = np.full((n, 3), np.nan)
         if ok.any():
-            pts[ok] = self.surface_points(sid[ok], uv[ok])
-            nrm[ok] = self.surface_normals(sid[ok], uv[ok])
+            pts[ok], nrm[ok] = self._points_normals(sid[ok], uv[ok])
         bad = ~ok | ~np.isfinite(nrm).all(axis=1)
         ok = ok & ~bad
         t = np.where(ok, t, np.nan)
@@ -539,7 +635,8 @@ class Scene:
         uv_out = np.full((n, 2), np.nan)
         ok = np.zeros(n, bool)
         for k, idx in _groups(sid, self.n_surfaces):
-            tk, uvk, okk = self._ray_newton_k(k, o[idx], d[idx], t0[idx], uv[idx], iters)
+            tk, uvk, okk = self._ray_newton_k(k, np.take(o, idx, axis=0), np.take(d, idx, axis=0),
+                                              t0[idx], np.take(uv, idx, axis=0), iters)
             t[idx], uv_out[idx], ok[idx] = tk, uvk, okk
         return t, uv_out, ok
 
@@ -554,12 +651,15 @@ class Scene:
         uv = np.clip(uv.copy(), lo, hi)
         t = t.copy()
         act = np.arange(len(t))
+        # the active rays' data are kept compact (no gathers per iteration); converged rays are
+        # written back as they leave
+        oa, da, ua, ta = o, d, uv, t
         for _ in range(iters):
             if act.size == 0:
                 break
-            s, su, sv = self._eval(k, uv[act, 0], uv[act, 1], 1)
-            f = s - o[act] - t[act, None] * d[act]
-            c = -d[act]
+            s, su, sv = self._eval(k, ua[:, 0], ua[:, 1], 1)
+            f = s - oa - ta[:, None] * da
+            c = -da
             sxc = np.cross(sv, c)
             det = _dot(su, sxc)
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -574,7 +674,7 @@ class Scene:
             scale = np.where(big > 0.25, 0.25 / np.maximum(big, 1e-300), 1.0)
             step *= scale[:, None]
             dt *= scale
-            new = uv[act] + step
+            new = ua + step
             # nudge singular (degenerate-point) iterates towards the domain centre
             new[sing] += 1e-6 * span * np.sign((lo + hi) / 2 - new[sing])
             for ax, per in enumerate((pu, pv)):
@@ -583,16 +683,23 @@ class Scene:
                 else:  # allow a small excursion so that Newton can cross an edge and be caught
                     new[:, ax] = np.clip(new[:, ax], lo[ax] - 0.5 * span[ax],
                                          hi[ax] + 0.5 * span[ax])
-            uv[act] = new
-            t[act] += dt
+            ua = new
+            ta = ta + dt
             conv = (np.linalg.norm(f, axis=1) < _NEWTON_TOL_MM) & ~sing
             conv &= np.abs(dt) < 1e-9
-            act = act[~conv]
+            if conv.any():
+                uv[act[conv]] = ua[conv]
+                t[act[conv]] = ta[conv]
+                keep = np.flatnonzero(~conv)  # np.take: faster than a boolean mask
+                act, oa, da = act[keep], np.take(oa, keep, axis=0), np.take(da, keep, axis=0)
+                ua, ta = np.take(ua, keep, axis=0), ta[keep]
+        uv[act] = ua
+        t[act] = ta
         inside = np.all((uv >= lo - _DOMAIN_SLACK * span) & (uv <= hi + _DOMAIN_SLACK * span),
                         axis=1)
         uv = np.clip(uv, lo, hi)
         # final check on the clamped parameters: the point must lie on the ray
-        s = self._eval(k, uv[:, 0], uv[:, 1], 1)[0]
+        s = self._eval(k, uv[:, 0], uv[:, 1], 0)[0]
         off = s - o
         tt = _dot(off, d) / _dot(d, d)
         resid = np.linalg.norm(off - tt[:, None] * d, axis=1)
@@ -602,11 +709,11 @@ class Scene:
     def intersect(self, origins, directions, tolerance_mm=0.2):
         """First intersection of rays with the exact surface.
 
-        Embree ray cast (``trimesh`` ``mesh.ray.intersects_id``, first hit) on
-        :meth:`mesh`, then :meth:`refine`. Rays that miss the mesh, or whose refinement fails,
-        have ``hit`` False and NaN values. A ray grazing the surface within about the mesh
-        tolerance of a silhouette may miss the (inscribed) mesh although it touches the exact
-        surface.
+        Embree ray cast (:meth:`mesh_cast`, first hit) on :meth:`mesh`, then :meth:`refine`
+        from the hit's barycentric interpolation of the face's vertex parameters. Rays that
+        miss the mesh, or whose refinement fails, have ``hit`` False and NaN values. A ray
+        grazing the surface within about the mesh tolerance of a silhouette may miss the
+        (inscribed) mesh although it touches the exact surface.
 
         Parameters
         ----------
@@ -634,14 +741,15 @@ class Scene:
         if n == 0:
             return out
         m = self.mesh(tolerance_mm)
-        tri, ray, loc = m.ray.intersects_id(o, d, multiple_hits=False, return_locations=True)
-        tri, ray, loc = np.asarray(tri), np.asarray(ray), np.asarray(loc, dtype=float)
+        ray, tri, t0, bary = self.mesh_cast(o, d, tolerance_mm)
         if ray.size == 0:
             return out
-        sid0, uv0 = self.mesh_hit_params(tri, loc, tolerance_mm)
-        t0 = _dot(loc - o[ray], d[ray])
-        facing = np.sign(_dot(m.face_normals[tri], d[ray]))
-        t, p, nrm, sid, ok, uv = self.refine(o[ray], d[ray], t0, sid0, uv0,
+        fv = m.faces[tri]
+        sid0 = m.metadata["face_surface_id"][tri]
+        uv0 = np.einsum("ni,nij->nj", bary, m.metadata["vertex_uv"][fv])
+        o_r, d_r = np.take(o, ray, axis=0), np.take(d, ray, axis=0)
+        facing = np.sign(_dot(np.take(m.face_normals, tri, axis=0), d_r))
+        t, p, nrm, sid, ok, uv = self.refine(o_r, d_r, t0, sid0, uv0,
                                              max_dt=max(20.0, 100 * tolerance_mm), facing=facing,
                                              return_uv=True)
         r = ray[ok]
@@ -935,16 +1043,21 @@ class Teapot(Scene):
         return float(_TEAPOT_ORIENTATION[k])
 
     def _eval(self, k, u, v, order=1):
+        # sum_ij a_i b_j P_ij, contracted one index at a time; the partial sums over i are
+        # shared by S, Sv (and Svv), those of the u-derivative by Su (and Suv)
         p = self.patches[k]
         bu, bv = bernstein3(u), bernstein3(v)
+        a0 = np.einsum("ni,ijc->njc", bu, p)
+        out = [np.einsum("njc,nj->nc", a0, bv)]
+        if order < 1:
+            return out
         du, dv = bernstein3(u, 1), bernstein3(v, 1)
-
-        def tensor(a, b):  # sum_ij a_i b_j P_ij, contracted one index at a time
-            return np.einsum("njc,nj->nc", np.einsum("ni,ijc->njc", a, p), b)
-
-        out = [tensor(bu, bv), tensor(du, bv), tensor(bu, dv)]
+        a1 = np.einsum("ni,ijc->njc", du, p)
+        out += [np.einsum("njc,nj->nc", a1, bv), np.einsum("njc,nj->nc", a0, dv)]
         if order >= 2:
-            out += [tensor(bernstein3(u, 2), bv), tensor(du, dv), tensor(bu, bernstein3(v, 2))]
+            a2 = np.einsum("ni,ijc->njc", bernstein3(u, 2), p)
+            out += [np.einsum("njc,nj->nc", a2, bv), np.einsum("njc,nj->nc", a1, dv),
+                    np.einsum("njc,nj->nc", a0, bernstein3(v, 2))]
         return out
 
     def _grid_size(self, k, tol):
