@@ -21,8 +21,8 @@ import numpy as np
 
 from ..errors import NurbscanError
 from .decode import band_crossings, bilinear, classify_colours, line_labels, window_votes
-from .edges import detect_edge_points
-from .lines import local_residual, trace_lines
+from .edges import detect_edge_points, refine_by_channels
+from .lines import join_collinear, local_residual, neighbour_fit, trace_lines
 from .normalize import channel_max, normalize
 from .result import DetectionResult
 
@@ -218,6 +218,94 @@ def propagate_labels(label, lr, lf, st, rw, ra, fa, lcode, seq, nbands: int, rat
     return label
 
 
+def propagate_pairs(label, lr, lf, lcode, seq, min_votes: int = 3,
+                    min_agreement: float = 0.9) -> np.ndarray:
+    """Label the other edge of labelled bands: both edges of a band crossing share its index.
+
+    A band crossing (K,) pairs the rising line ``lr`` and falling line ``lf`` of one band along
+    a row (column). Each crossing with one labelled and one unlabelled line votes the label to
+    the unlabelled one; a line takes the index when ``min_votes`` votes agree (share
+    ``min_agreement`` of its votes) and its own colour code ``lcode`` (-1 unknown) is the
+    pattern's colour of that band. Returns the new labels (L,).
+    """
+    a, b = label[lr], label[lf]
+    src = np.r_[a, b]
+    dst = np.r_[lf, lr]
+    ok = (src >= 0) & (label[dst] < 0)
+    if not np.any(ok):
+        return label
+    new, _, _ = line_labels(dst[ok], None, src[ok], len(label), min_votes=min_votes,
+                            min_agreement=min_agreement, direct=True)
+    cand = np.nonzero(new >= 0)[0]
+    ok = lcode[cand] == seq[new[cand]]
+    out = label.copy()
+    out[cand[ok]] = new[cand[ok]]
+    return out
+
+
+def propagate_collinear(label, src, dst, lcode, seq) -> np.ndarray:
+    """Give an unlabelled chain the label of the chain it continues (or that continues it).
+
+    ``src -> dst`` (J,) are joins of collinear chains of one edge class across a gap
+    (:func:`~nurbscan.detect.lines.join_collinear`): pieces of one edge cut by a crossing band.
+    The unlabelled piece takes the label when its own colour code ``lcode`` is the pattern's
+    colour of that band (an unknown colour does not confirm it). Returns labels (L,).
+    """
+    out = label.copy()
+    for a, b in ((src, dst), (dst, src)):
+        m = (out[a] >= 0) & (out[b] < 0)
+        a, b = a[m], b[m]
+        ok = lcode[b] == seq[out[a]]
+        out[b[ok]] = out[a[ok]]
+    return out
+
+
+def check_band_width(label, props, ratio: float, tol: float, min_count: int = 3) -> np.ndarray:
+    """Unlabel lines whose bands are consistently too narrow or too wide: occluding contours.
+
+    Where a surface in front hides part of a band, the occluding contour is seen as an edge of
+    that band, and the band between it and the band's visible edge is narrower than its
+    neighbours. For every band crossing the relative width ``w / (ratio * p)`` (``w`` the
+    distance from rising to falling edge, ``p`` the distance to the neighbouring crossing of
+    the same row, the nearer one when both exist) is 1 on an unoccluded surface; a line whose
+    crossings (at least ``min_count``) have a median relative width off 1 by more than ``tol``
+    gets label -1.
+
+    ``props`` holds per direction the tuple (lr, lf, st, row, rising, falling, ...) of the
+    crossings, as in :func:`propagate_labels`. Returns labels (L,).
+    """
+    n = len(label)
+    lines, rel = [], []
+    for lr, lf, st, rw, ra, fa, *_ in props:
+        if len(st) < 2:
+            continue
+        mid = 0.5 * (ra + fa)
+        same = (st[1:] == st[:-1] + 2) & (rw[1:] == rw[:-1])
+        dn = np.where(same, mid[1:] - mid[:-1], np.nan)
+        with np.errstate(all="ignore"):
+            nb = np.fmin(np.r_[np.nan, dn], np.r_[dn, np.nan])
+            r = (fa - ra) / (ratio * nb)
+        ok = np.isfinite(r)
+        lines += [lr[ok], lf[ok]]
+        rel += [r[ok], r[ok]]
+    if not lines:
+        return label
+    ln = np.concatenate(lines)
+    rv = np.concatenate(rel)
+    o = np.lexsort((rv, ln))
+    ln, rv = ln[o], rv[o]
+    cnt = np.bincount(ln, minlength=n)
+    stop = np.cumsum(cnt)
+    med = np.full(n, 1.0)
+    has = cnt > 0
+    lo = (stop - cnt)[has] + (cnt[has] - 1) // 2
+    hi = (stop - cnt)[has] + cnt[has] // 2
+    med[has] = 0.5 * (rv[lo] + rv[hi])
+    out = label.copy()
+    out[(cnt >= min_count) & (np.abs(med - 1.0) > tol)] = -1
+    return out
+
+
 def _adjacent(st, rw, ra, fa, ratio: float, tol: float = 0.25) -> np.ndarray:
     """Indices k where band crossings k and k+1 are neighbouring bands (see propagate)."""
     if len(st) < 2:
@@ -293,7 +381,11 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                 min_votes: int = 3,
                 min_agreement: float = 0.9, min_consensus: float = 0.85,
                 crossing_margin: float = 0.0, max_residual: float = 0.3,
-                window: int = 31) -> DetectionResult:
+                window: int = 31, propagation_rounds: int = 1,
+                join_gap: float | None = None, refine: bool = True,
+                refit_residual: float = 0.3, unrefined: str = "keep",
+                width_tol: float = 0.35, line_width_tol: float = 0.2,
+                keep_unpaired: bool = False) -> DetectionResult:
     """Find, trace and decode the grid's edge lines in one photograph.
 
     Parameters
@@ -331,6 +423,35 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         pattern is taken not to match the photograph (empty result with a warning).
     window : int
         Local normalisation window without a white image, px.
+    propagation_rounds : int
+        Rounds of label propagation (:func:`propagate_labels` along rows / columns,
+        :func:`propagate_pairs` between a band's two edges, :func:`propagate_collinear` along
+        pieces of one edge); more rounds label more lines but carry a wrong label further.
+    join_gap : float, optional
+        Largest gap (px) across which collinear chains of one class are taken as pieces of one
+        edge (:func:`~nurbscan.detect.lines.join_collinear`); default 1.5 band widths +
+        4 sigma, 0 disables.
+    refine : bool
+        Re-measure the decoded points in their band's clean colour channels
+        (:func:`~nurbscan.detect.edges.refine_by_channels`).
+    refit_residual : float
+        After refinement, drop points farther than this (px) from the straight line through
+        their chain neighbours; 0 keeps them.
+    unrefined : {"keep", "fit", "drop"}
+        Points that the refinement could not re-measure: "keep" them (moved onto their
+        re-measured neighbours' line where there are such neighbours), keep only those so
+        moved ("fit"), or "drop" them all.
+    width_tol : float
+        Relative tolerance of a band's width against the local pitch times band / pitch for a
+        rising / falling pair to count as a band crossing (partly occluded or squeezed bands
+        give inexact edges and misleading colours).
+    line_width_tol : float
+        Unlabel lines whose bands' median relative width is off by more than this
+        (:func:`check_band_width`, occluding contours); 0 disables.
+    keep_unpaired : bool
+        Also keep the points of labelled lines that are not one edge of a band crossing in
+        their row (column) when the second pass re-measured them (more coverage, about
+        +4 % on the 7.1 MP teapot, at a larger RMS error: 0.071 instead of 0.057 px).
 
     Returns
     -------
@@ -339,6 +460,8 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     """
     if not gamma > 0:
         raise NurbscanError(f"gamma={gamma!r}: must be positive")
+    if unrefined not in ("keep", "fit", "drop"):
+        raise NurbscanError(f"unrefined={unrefined!r}: must be 'keep', 'fit' or 'drop'")
     lin = as_float_image(image, gamma=gamma)
     h, w = lin.shape[:2]
     wl = None
@@ -360,8 +483,9 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     nrm = normalize(lin, wl, window=window)
     del lin, wl
     sig = nrm.signal
+    band_px_est = band_width_px(sig, pattern, nrm.valid)
     if sigma is None:
-        sigma = auto_sigma(band_width_px(sig, pattern, nrm.valid))
+        sigma = auto_sigma(band_px_est)
     elif not sigma > 0:
         raise NurbscanError(f"sigma={sigma!r}: must be positive")
     pts = detect_edge_points(sig, sigma=sigma, threshold=threshold, valid=nrm.valid,
@@ -371,6 +495,14 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     if len(pts.x) < 20:
         return give_up("image: blank (no edges), no grid found")
     order, line = trace_lines(pts, (h, w), min_length=min_length)
+    if join_gap is None:
+        join_gap = 1.5 * band_px_est + 4 * sigma if np.isfinite(band_px_est) else 0.0
+    if join_gap > 0 and len(line):
+        jsrc, jdst = join_collinear(pts.x[order], pts.y[order],
+                                    pts.cls[order].astype(np.int64), line, max_gap=join_gap,
+                                    pairs_only=True)
+    else:
+        jsrc = jdst = np.zeros(0, np.int64)
     nlines = int(line.max()) + 1 if len(line) else 0
     px, py = pts.x[order], pts.y[order]
     cls = pts.cls[order].astype(np.int64)
@@ -382,7 +514,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         sel = np.nonzero((cls // 2) == d)[0]
         across = px[sel] if d == 0 else py[sel]
         run = iy[sel] if d == 0 else ix[sel]
-        o, st = band_crossings(across, run, cls[sel] % 2, ratio)
+        o, st = band_crossings(across, run, cls[sel] % 2, ratio, tol=width_tol)
         a = across[o]
         mid = 0.5 * (a[st] + a[st + 1])
         rr = run[o[st]].astype(np.float64)
@@ -434,11 +566,21 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         return give_up(f"pattern: does not match the photograph (only {consensus:.0%} of the "
                        "colour windows agree with their neighbours)")
     seq = np.asarray(pattern.sequence)
-    for lr, lf, st, rw, ra, fa, lcode, name in props:
-        label = propagate_labels(label, lr, lf, st, rw, ra, fa, lcode, seq,
-                                 pattern.nbands(name), pattern.pitch / pattern.band)
+    lcode_all = np.max(np.stack([q[6] for q in props]), axis=0)
+    for _ in range(propagation_rounds):
+        before = int(np.sum(label >= 0))
+        for lr, lf, st, rw, ra, fa, lcode, name in props:
+            label = propagate_labels(label, lr, lf, st, rw, ra, fa, lcode, seq,
+                                     pattern.nbands(name), pattern.pitch / pattern.band)
+            label = propagate_pairs(label, lr, lf, lcode, seq, min_votes=min_votes,
+                                    min_agreement=min_agreement)
+        label = propagate_collinear(label, jsrc, jdst, lcode_all, seq)
+        if int(np.sum(label >= 0)) == before:
+            break
     for lr, lf, st, rw, ra, fa, _, _ in props:
         label = check_adjacency(label, lr, lf, st, rw, ra, fa, pattern.pitch / pattern.band)
+    if line_width_tol > 0:
+        label = check_band_width(label, props, ratio, line_width_tol)
     ldir = np.zeros(nlines, np.int64)
     if len(line):
         ldir[line] = cls // 2
@@ -472,11 +614,40 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
             paired[sel_d] &= dist_o[iy[sel_d], ix[sel_d]] >= crossing_margin
     good &= np.bincount(line[paired], minlength=nlines) >= 2
     new_id = np.cumsum(good) - 1
-    keep = good[line] & paired
+    keep = good[line] & (paired | (keep_unpaired & refine))
+    paired_k = paired[keep]
     px, py, line = px[keep], py[keep], new_id[line[keep]]
     strength = pts.strength[order][keep]
     lab = label[good]
     ldir, ledge = ldir[good], ledge[good]
+    if refine:
+        # second pass: re-measure each point in its band's clean colour channels
+        inv = nrm.inverse if len(nrm.inverse) == 3 else nrm.inverse * 3
+        chn = [c * i for c, i in zip(nrm.channels, inv, strict=True)]
+        colour = np.asarray(pattern.rgb)[seq[lab[line]]] > 127
+        px, py, done = refine_by_channels(chn, ix[keep], iy[keep], cls[keep], colour, px, py,
+                                          sigma, sigma_along)
+        del chn
+        # points with no clean channel (their crossing band shares the band's channels) are
+        # placed on the straight line through their re-measured chain neighbours
+        vk = cls[keep] < 2
+        c0, okf = neighbour_fit(np.where(vk, py, px), np.where(vk, px, py), line, done,
+                               both_sides=False)
+        fix = okf & ~done
+        px = np.where(fix & vk, c0, px)
+        py = np.where(fix & ~vk, c0, py)
+        # unpaired points (kept with keep_unpaired) only where re-measured
+        kp = paired_k | done
+        if unrefined == "fit":
+            kp &= done | fix
+        elif unrefined == "drop":
+            kp &= done
+        if refit_residual > 0:
+            # a point off the straight line through its re-measured neighbours (a kink where
+            # the edge meets an occluding contour, a disturbed corner) is dropped
+            res = local_residual(np.where(vk, py, px), np.where(vk, px, py), line)
+            kp &= res <= refit_residual
+        px, py, line, strength = px[kp], py[kp], line[kp], strength[kp]
     nl = len(lab)
     counts = np.bincount(line, minlength=nl)
     stop = np.cumsum(counts)
@@ -494,7 +665,8 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     okc = grid_consistency(cam, proj, tol=0.5 * pattern.band)
     bad_n = np.bincount(cl[~okc].ravel(), minlength=nl)
     good_n = np.bincount(cl[okc].ravel(), minlength=nl)
-    drop = (bad_n >= 2) & (bad_n > good_n)
+    # and lines left with fewer than min_length points after the point filters
+    drop = ((bad_n >= 2) & (bad_n > good_n)) | (counts < min_length)
     if np.any(drop):
         keepl = ~drop
         new_id = np.cumsum(keepl) - 1
