@@ -383,9 +383,10 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                 crossing_margin: float = 0.0, max_residual: float = 0.3,
                 window: int = 31, propagation_rounds: int = 1,
                 join_gap: float | None = None, refine: bool = True,
-                refit_residual: float = 0.3, unrefined: str = "keep",
+                refit_residual: float = 0.2, unrefined: str = "keep",
                 width_tol: float = 0.35, line_width_tol: float = 0.2,
-                keep_unpaired: bool = False) -> DetectionResult:
+                keep_unpaired: bool = False, dominance: float = 1.0,
+                corner_keep: float = 0.0) -> DetectionResult:
     """Find, trace and decode the grid's edge lines in one photograph.
 
     Parameters
@@ -452,6 +453,18 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         Also keep the points of labelled lines that are not one edge of a band crossing in
         their row (column) when the second pass re-measured them (more coverage, about
         +4 % on the 7.1 MP teapot, at a larger RMS error: 0.071 instead of 0.057 px).
+    dominance : float
+        Gradient dominance of an edge point's class
+        (:func:`~nurbscan.detect.edges.detect_edge_points`); below 1 edge pixels next to a
+        crossing band's corner also join their lines, so more lines are traced through and
+        labelled (7.1 MP teapot, with ``dominance=0.5, corner_keep=1, refit_residual=0.15``:
+        coverage 53.3 -> 57.2 %, labels 99.88 %, RMS 0.054 -> 0.058 px; a few intersections
+        of short lines go wrong). Default 1: one class per pixel, as before.
+    corner_keep : float
+        A rising / falling pair counts as a band crossing (its points kept) only where both
+        points' gradient across their edge is at least this times the one along it; 0 keeps
+        all (with ``dominance < 1`` use 1: the corner pixels then serve only tracing and
+        labelling).
 
     Returns
     -------
@@ -460,6 +473,9 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     """
     if not gamma > 0:
         raise NurbscanError(f"gamma={gamma!r}: must be positive")
+    if not 0 < dominance <= 1 or not corner_keep >= 0:
+        raise NurbscanError(f"dominance={dominance!r}, corner_keep={corner_keep!r}: need "
+                            "0 < dominance <= 1 and corner_keep >= 0")
     if unrefined not in ("keep", "fit", "drop"):
         raise NurbscanError(f"unrefined={unrefined!r}: must be 'keep', 'fit' or 'drop'")
     lin = as_float_image(image, gamma=gamma)
@@ -489,7 +505,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     elif not sigma > 0:
         raise NurbscanError(f"sigma={sigma!r}: must be positive")
     pts = detect_edge_points(sig, sigma=sigma, threshold=threshold, valid=nrm.valid,
-                             sigma_along=sigma_along)
+                             sigma_along=sigma_along, dominance=dominance)
     # a dark gap: well below the dimmest single-primary band (sum of channels ~1 in a band)
     dark_level = 0.35
     if len(pts.x) < 20:
@@ -508,6 +524,11 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     cls = pts.cls[order].astype(np.int64)
     ix, iy = pts.ix[order], pts.iy[order]
     ratio = pattern.band / pattern.pitch
+    # a point is strict where its own gradient dominates the other direction's by corner_keep
+    # (with dominance < 1 the others only help tracing and labelling)
+    gxo, gyo = np.abs(pts.gx[order]), np.abs(pts.gy[order])
+    strict = np.where(cls < 2, gxo, gyo) >= corner_keep * np.where(cls < 2, gyo, gxo)
+    del gxo, gyo
     # band crossings along rows (vertical bands) and columns (horizontal bands)
     parts = []
     for d, name in ((0, "vertical"), (1, "horizontal")):
@@ -544,8 +565,9 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         p_, i_, j_ = window_votes(o, st, run, across, ccode, pattern, name)
         a = across[o]
         props.append((lr, lf, st, run[o[st]], a[st], a[st + 1], lcode, name))
-        paired[sel[o[st]]] = True
-        paired[sel[o[st + 1]]] = True
+        both = strict[sel[o[st]]] & strict[sel[o[st + 1]]]
+        paired[sel[o[st[both]]]] = True
+        paired[sel[o[st[both] + 1]]] = True
         vp.append(sel[p_])
         vi.append(i_)
         vj.append(j_)

@@ -101,8 +101,8 @@ def _subpixel(lm: np.ndarray, l0: np.ndarray, lp: np.ndarray) -> np.ndarray:
 
 
 def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float = 0.06,
-                       valid: np.ndarray | None = None, sigma_along: float | None = None
-                       ) -> EdgePoints:
+                       valid: np.ndarray | None = None, sigma_along: float | None = None,
+                       dominance: float = 1.0) -> EdgePoints:
     """Find the sub-pixel edge points of ``signal`` (module notes).
 
     Parameters
@@ -118,6 +118,11 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         scale t has a peak gradient 1 / (t sqrt(2 pi)), about 0.3 for t = 1.3).
     valid : ndarray (H, W) of bool, optional
         Pixels where edges may be found.
+    dominance : float
+        A pixel is a vertical-edge candidate where ``|gx| >= dominance |gy|`` and a
+        horizontal-edge candidate where ``|gy| > dominance |gx|``; below 1 a pixel may be both
+        (near a crossing band's corner the other direction's gradient dominates, yet the
+        edge's row or column profile still has its peak there).
 
     Returns
     -------
@@ -140,14 +145,14 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     out = []
     # vertical class: maximum of m along the row
     c = np.zeros((h, w), bool)
-    c[:, 1:-1] = (strong[:, 1:-1] & (ax[:, 1:-1] >= ay[:, 1:-1])
+    c[:, 1:-1] = (strong[:, 1:-1] & (ax[:, 1:-1] >= dominance * ay[:, 1:-1])
                   & (ax[:, 1:-1] > ax[:, :-2]) & (ax[:, 1:-1] >= ax[:, 2:]))
     iy, ix = np.nonzero(c)
     d = _subpixel(lx[iy, ix - 1], lx[iy, ix], lx[iy, ix + 1])
     out.append((ix + d, iy.astype(np.float64), ix, iy, np.where(gx[iy, ix] > 0, 0, 1),
                 ax[iy, ix], gx[iy, ix], gy[iy, ix]))
     c[:] = False
-    c[1:-1, :] = (strong[1:-1, :] & (ay[1:-1, :] > ax[1:-1, :])
+    c[1:-1, :] = (strong[1:-1, :] & (ay[1:-1, :] > dominance * ax[1:-1, :])
                   & (ay[1:-1, :] > ay[:-2, :]) & (ay[1:-1, :] >= ay[2:, :]))
     iy, ix = np.nonzero(c)
     d = _subpixel(ly[iy - 1, ix], ly[iy, ix], ly[iy + 1, ix])
