@@ -17,6 +17,7 @@ from pathlib import Path
 from .camera import board_points, calibrate_camera, detect_chessboard
 from .pipeline import (
     CalibrationResult,
+    Target,
     calibrate_scan,
     compare_rigs,
     held_out_error,
@@ -53,6 +54,7 @@ __all__ = [
     "detect_chessboard",
     "fit_turntable",
     "held_out_error",
+    "Target",
     "init_projector",
     "plane_homography",
     "residual_image",

@@ -134,6 +134,28 @@ def _pitch(doc: dict, key: str, width: int, default_sensor: float) -> tuple[floa
     return d, d
 
 
+def _clean_board_points(xy: np.ndarray, target: Target, keep_off_edges_mm: float) -> np.ndarray:
+    """(K,) bool: board points (K, 2), mm, on a white square or the white margin, at least
+    ``keep_off_edges_mm`` from any printed square edge and from the board's outline."""
+    xy = np.asarray(xy, float)
+    s = target.square
+    ix, iy = np.floor(xy[:, 0] / s), np.floor(xy[:, 1] / s)
+    in_sq = (ix >= -1) & (ix <= target.cols - 1) & (iy >= -1) & (iy <= target.rows - 1)
+    white = ~in_sq | ((ix + iy) % 2 == 1)
+    fx, fy = xy[:, 0] / s - ix, xy[:, 1] / s - iy
+    m = keep_off_edges_mm / s
+    away = ~in_sq | ((fx > m) & (fx < 1 - m) & (fy > m) & (fy < 1 - m))
+    x0, x1 = -s - target.margin, target.cols * s + target.margin
+    y0, y1 = -s - target.margin, target.rows * s + target.margin
+    inside = (xy[:, 0] > x0 + 2 * keep_off_edges_mm) & (xy[:, 0] < x1 - 2 * keep_off_edges_mm) \
+        & (xy[:, 1] > y0 + 2 * keep_off_edges_mm) & (xy[:, 1] < y1 - 2 * keep_off_edges_mm)
+    # points just outside the square field are on the white margin: away from the outer squares
+    near_field = (xy[:, 0] > -s - keep_off_edges_mm) & (xy[:, 0] < target.cols * s
+                                                        + keep_off_edges_mm) \
+        & (xy[:, 1] > -s - keep_off_edges_mm) & (xy[:, 1] < target.rows * s + keep_off_edges_mm)
+    return white & away & inside & ~(~in_sq & near_field) & np.all(np.isfinite(xy), axis=1)
+
+
 def edge_observations(det, kc, rvec, tvec, target: Target, view: int, dc,
                       max_points: int, keep_off_edges_mm: float = 2.0,
                       rng: np.random.Generator | None = None) -> ProjObs:
@@ -155,22 +177,7 @@ def edge_observations(det, kc, rvec, tvec, target: Target, view: int, dc,
     sign = 2.0 * np.asarray(det.edge)[line] - 1.0  # rising -1, falling +1
     o = ProjObs(px, value, axis, v, sign)
     xy = board_frame_points(kc, rvec[None], tvec[None], ProjObs(px, value, axis, v * 0), *dc)
-    s = target.square
-    ix, iy = np.floor(xy[:, 0] / s), np.floor(xy[:, 1] / s)
-    in_sq = (ix >= -1) & (ix <= target.cols - 1) & (iy >= -1) & (iy <= target.rows - 1)
-    white = ~in_sq | ((ix + iy) % 2 == 1)
-    fx, fy = xy[:, 0] / s - ix, xy[:, 1] / s - iy
-    m = keep_off_edges_mm / s
-    away = ~in_sq | ((fx > m) & (fx < 1 - m) & (fy > m) & (fy < 1 - m))
-    x0, x1 = -s - target.margin, target.cols * s + target.margin
-    y0, y1 = -s - target.margin, target.rows * s + target.margin
-    inside = (xy[:, 0] > x0 + 2 * keep_off_edges_mm) & (xy[:, 0] < x1 - 2 * keep_off_edges_mm) \
-        & (xy[:, 1] > y0 + 2 * keep_off_edges_mm) & (xy[:, 1] < y1 - 2 * keep_off_edges_mm)
-    # points just outside the square field are on the white margin: away from the outer squares
-    near_field = (xy[:, 0] > -s - keep_off_edges_mm) & (xy[:, 0] < target.cols * s
-                                                        + keep_off_edges_mm) \
-        & (xy[:, 1] > -s - keep_off_edges_mm) & (xy[:, 1] < target.rows * s + keep_off_edges_mm)
-    keep = white & away & inside & ~(~in_sq & near_field) & np.all(np.isfinite(xy), axis=1)
+    keep = _clean_board_points(xy, target, keep_off_edges_mm)
     idx = np.flatnonzero(keep)
     if len(idx) > max_points:
         rng = rng or np.random.default_rng(0)
@@ -509,49 +516,120 @@ def triangulate_edges(rig, pixels: np.ndarray, value: np.ndarray, axis: np.ndarr
 
 
 def held_out_error(rig_est, rig_true, det, board_R, board_T, max_points: int = 20000,
-                   edge_bias=None) -> dict:
-    """Triangulation error on a target pose left out of the calibration.
+                   edge_bias=None, target: Target | None = None,
+                   keep_off_edges_mm: float = 2.0, gross_mm: float = 1.0) -> dict:
+    """Triangulation error on a target pose left out of the calibration (issue 6).
 
-    Edge points of the pose's decoded grid are triangulated with the estimated rig; the truth
-    for a camera pixel is where the TRUE camera ray through it meets the TRUE board plane
-    (board -> rig pose ``board_R``, ``board_T``). Points off the board are dropped.
-    ``edge_bias`` (2,), optional: the band-edge bias per axis found by the calibration
-    (``figures["edge_bias_projector_px"]``); edge coordinates are corrected by it first.
+    Edge points of the pose's decoded grid are triangulated with the estimated rig
+    (:func:`triangulate_edges`: camera ray meets the projector's light surface of the decoded
+    coordinate); the truth for a camera pixel is where the TRUE camera ray through it meets
+    the TRUE board plane (board -> rig pose ``board_R``, ``board_T``), so the error is the
+    depth error along the ray caused by the rig and by the decoded projector coordinate.
+
+    With ``target`` given, only the points the calibration itself uses are measured: on a
+    white square or the white margin, at least ``keep_off_edges_mm`` from a printed square
+    edge and from the board's outline (classified with the TRUE board pose; the same rule as
+    :func:`edge_observations`); black squares reflect too little light to decode, and the
+    albedo step at a printed edge moves the band edges. Without it, every decoded point on
+    the board plane is measured.
+
+    Parameters
+    ----------
+    rig_est, rig_true : nurbscan.camera.Rig
+        Rig to triangulate with and the simulator's true rig.
+    det : nurbscan.detect.DetectionResult
+        Detection of the held-out pose's grid image.
+    board_R, board_T : ndarray, shapes (3, 3), (3,)
+        True board -> rig pose of the held-out view (mm).
+    max_points : int
+        Points measured at most (evenly at random, fixed seed).
+    edge_bias : array_like (2,), optional
+        Band-edge bias per axis found by the calibration (``figures["edge_bias_projector_px"]``,
+        projector px): rising edges read ``-bias``, falling ``+bias``
+        (:func:`nurbscan.calibrate._bundle.projector_residuals`); the decoded coordinates are
+        corrected by it before triangulating.
+    target : Target, optional
+        The chessboard (point selection above).
+    gross_mm : float
+        Errors above this (decoding errors: wrong band) are counted, not averaged.
 
     Returns
     -------
     dict
-        ``rms_mm`` (3-D distance), ``plane_rms_mm`` (distance to the true plane), ``points``.
+        ``rms_mm`` (3-D distance to the true point), ``plane_rms_mm`` (distance to the true
+        plane), ``aligned_rms_mm`` (3-D distance after the best rigid motion of the points
+        onto the truth: the shape error), ``median_mm``, ``points``, ``gross_errors``,
+        ``board_extent_mm``, and
+        ``coord_error_px``: mean and standard deviation of the (corrected) decoded projector
+        coordinate minus the TRUE rig's coordinate at the point, per axis (x, y) and edge kind
+        (rising, falling), projector px: the detection's own bias and noise.
     """
     px = np.stack([np.asarray(det.x, float), np.asarray(det.y, float)], axis=1)
     line = np.asarray(det.line)
-    axis = np.asarray(det.direction)[line]
+    axis = np.asarray(det.direction)[line].astype(np.int64)
     value = np.asarray(det.coord, float)[line]
+    sign = 2.0 * np.asarray(det.edge)[line] - 1.0  # rising -1, falling +1
     if edge_bias is not None:
-        value = value + (2.0 * np.asarray(det.edge)[line] - 1.0) * np.asarray(edge_bias)[axis]
-    if len(px) > max_points:
-        idx = np.random.default_rng(0).choice(len(px), max_points, replace=False)
-        px, axis, value = px[idx], axis[idx], value[idx]
-    X = triangulate_edges(rig_est, px, value, axis)
+        value = value + sign * np.asarray(edge_bias, float)[axis]
     kt, dt = _cam_params(rig_true.camera)
-    dirs = back_project_local(px, kt, *dt)
     Rc, Tc = np.asarray(rig_true.camera.R, float), np.asarray(rig_true.camera.T, float)
-    # true camera ray in the rig frame (true camera pose may differ from identity)
-    o = -Rc.T @ Tc
-    dw = dirs @ Rc
-    n = np.asarray(board_R, float)[:, 2]
-    s = (n @ (np.asarray(board_T, float) - o)) / (dw @ n)
-    Xt = o + dw * s[:, None]
-    Xb = (Xt - board_T) @ np.asarray(board_R, float)
-    ok = np.all(np.isfinite(X), axis=1) & np.isfinite(s)
-    err = np.linalg.norm(X - Xt, axis=1)[ok]
-    # robust: drop gross decoding errors (> 1 mm) and report how many
-    gross = err > 1.0
-    e = err[~gross]
-    pl = ((X[ok] - board_T) @ n)[~gross]
+    board_R, board_T = np.asarray(board_R, float), np.asarray(board_T, float)
+    n = board_R[:, 2]
+
+    def truth(p):
+        # true camera ray in the rig frame (the true camera pose may differ from identity)
+        o = -Rc.T @ Tc
+        dw = back_project_local(p, kt, *dt) @ Rc
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (n @ (board_T - o)) / (dw @ n)
+        return o + dw * s[:, None]
+
+    if target is not None and len(px):
+        Xb = (truth(px) - board_T) @ board_R
+        keep = _clean_board_points(Xb[:, :2], target, keep_off_edges_mm)
+        px, axis, value, sign = px[keep], axis[keep], value[keep], sign[keep]
+    if len(px) > max_points:
+        idx = np.sort(np.random.default_rng(0).choice(len(px), max_points, replace=False))
+        px, axis, value, sign = px[idx], axis[idx], value[idx], sign[idx]
+    if len(px) == 0:
+        raise NurbscanError("held-out pose: no decoded edge points on the target")
+    X = triangulate_edges(rig_est, px, value, axis)
+    Xt = truth(px)
+    Xb = (Xt - board_T) @ board_R
+    # decoded coordinate against the true rig's projector coordinate of the true point
+    kp, dp = _cam_params(rig_true.projector)
+    uv = project_local(Xt @ np.asarray(rig_true.projector.R, float).T
+                       + np.asarray(rig_true.projector.T, float), kp, *dp)
+    dv = value - np.take_along_axis(uv, axis[:, None], axis=1)[:, 0]
+    ok = np.all(np.isfinite(X), axis=1) & np.all(np.isfinite(Xt), axis=1)
+    err = np.linalg.norm(X - Xt, axis=1)
+    gross = ok & (err > gross_mm)
+    good = ok & ~gross
+    e = err[good]
+    pl = (X[good] - board_T) @ n
+    # shape error: the same distances after the best rigid motion of the triangulated points
+    # onto the truth (Kabsch; Arun, Huang and Blostein 1987): what is left when the rig's
+    # frame (e.g. its principal point) is slightly off but the geometry is right
+    A, B = X[good], Xt[good]
+    if len(A) >= 3:
+        ca, cb = A.mean(axis=0), B.mean(axis=0)
+        U, _, Vt = np.linalg.svd((A - ca).T @ (B - cb))
+        Rk = Vt.T @ np.diag([1, 1, np.sign(np.linalg.det(Vt.T @ U.T))]) @ U.T
+        aligned = float(np.sqrt(np.mean(np.sum(((A - ca) @ Rk.T - (B - cb))**2, axis=1))))
+    else:
+        aligned = float("nan")
+    coord: dict[str, dict[str, float]] = {}
+    for a, an in ((0, "x"), (1, "y")):
+        for sg, sn in ((-1.0, "rising"), (1.0, "falling")):
+            m = good & (axis == a) & (sign == sg)
+            coord[f"{an}_{sn}"] = {"mean": float(np.mean(dv[m])) if m.any() else float("nan"),
+                                   "std": float(np.std(dv[m])) if m.any() else float("nan"),
+                                   "n": int(np.sum(m))}
     return {"rms_mm": float(np.sqrt(np.mean(e**2))), "plane_rms_mm": float(np.sqrt(np.mean(
         pl**2))), "median_mm": float(np.median(e)), "points": int(len(e)),
-            "gross_errors": int(np.sum(gross)), "board_extent_mm": float(np.ptp(Xb[:, 0]))}
+            "gross_errors": int(np.sum(gross)), "aligned_rms_mm": aligned,
+            "board_extent_mm": float(np.ptp(Xb[good, 0])) if len(e) else 0.0,
+            "coord_error_px": coord}
 
 
 def residual_image(result: CalibrationResult, size: tuple[int, int], tile: int = 384,
