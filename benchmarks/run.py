@@ -4,17 +4,37 @@ Each ``benchmarks/bench_*.py`` defines ``bench() -> dict`` of measured figures (
 string or nested dict). Each runs in its own Python process, so that its peak memory (the
 child's maximum resident set size) is its own. Figures are measured on every run, never typed in.
 
-Usage: ``python benchmarks/run.py [NAME ...]`` (names without ``bench_``; default all).
+Usage::
+
+    python benchmarks/run.py [NAME ...] [--runs N] [--repeat N] [--budget SECONDS] [--quick]
+
+* ``NAME``: benchmarks to run (names without ``bench_``; default all). With names, the other
+  benchmarks' figures are kept from the previous run (``benchmarks/results.json``, the raw
+  figures, written beside RESULTS.md) and each section says when it was measured.
+* ``--runs N``: run each benchmark N times, each in a fresh process, and report the median of
+  every numeric figure (strings from the last run). Default 1.
+* ``--repeat N``: repetitions inside a benchmark (``NURBSCAN_BENCH_REPEAT`` for the benchmarks
+  that read it; their figures are medians of N runs). Default: each benchmark's own (3).
+* ``--budget SECONDS``: wall-clock budget of the whole run (default ``NURBSCAN_BENCH_BUDGET`` or
+  1800 s): each benchmark may use what is left, one still running when it runs out is stopped
+  and reported as such; benchmarks not started are listed as skipped.
+* ``--quick``: ``NURBSCAN_BENCH_QUICK=1`` (reduced image sizes, for development).
+
+The file starts with the targets of the issues beside the measured figures (:data:`TARGETS`).
 """
 
 from __future__ import annotations
 
+import argparse
 import datetime as _dt
 import json
+import math
 import os
 import platform
+import statistics
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -28,6 +48,29 @@ res = mod.bench()
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 print("@@RESULT@@" + json.dumps({"figures": res, "peak_rss_mb": peak}, default=float))
 """
+
+#: Targets shown at the top of RESULTS.md: (target, benchmark, figure path (" / "-joined keys
+#: of the flattened figures), comparison, value). A figure that is missing is "not measured".
+TARGETS = [
+    ("detect per 7.1 MP view (s)", "pipeline",
+     "one 7.1 MP view, per stage / stages / detect / median s", "<=", 1.0),
+    ("image-to-Gordon per 7.1 MP view (s)", "pipeline",
+     "one 7.1 MP view, per stage / stages / image-to-Gordon (detect + reconstruct) / "
+     "median s", "<=",
+     3.0),
+    ("time linear in pixels: detect, slope of log t / log px", "pipeline",
+     "scaling with image size / slope log(time) / log(pixels) (1 = linear; target: linear) / "
+     "detect", "~1", 1.0),
+    ("time linear in pixels: image-to-Gordon, slope", "pipeline",
+     "scaling with image size / slope log(time) / log(pixels) (1 = linear; target: linear) / "
+     "image-to-Gordon", "~1", 1.0),
+    ("nurbscan single-shot point RMS / Gray code's (median over views)", "graycode",
+     "median over views / RMS ratio nurbscan / Gray code", "<=", 1.5),
+    ("simulate one 7.1 MP view (s)", "simulate",
+     "one view: grid + white image + truth (s)", "<=", 15.0),
+]
+#: A slope counts as linear within this distance of 1.
+SLOPE_TOL = 0.2
 
 
 def machine() -> str:
@@ -72,50 +115,197 @@ def flatten(d: dict, prefix: str = "") -> list[tuple[str, object]]:
 
 
 def fmt(v: object) -> str:
+    if isinstance(v, bool):
+        return str(v)
     if isinstance(v, float):
-        return f"{v:.4g}"
-    return str(v)
+        return "n/a" if math.isnan(v) else f"{v:.4g}"
+    if v is None:
+        return "n/a"
+    return str(v).replace("|", "/")
 
 
-def run_one(path: Path) -> dict:
+def _is_table(d: dict) -> bool:
+    """A dict of >= 2 dicts of scalars sharing most keys: rendered as one table."""
+    vals = list(d.values())
+    if len(vals) < 2 or not all(isinstance(v, dict) and v for v in vals):
+        return False
+    if any(isinstance(x, dict) for v in vals for x in v.values()):
+        return False
+    keys = set(vals[0])
+    return all(len(keys & set(v)) >= max(1, len(keys) // 2) for v in vals)
+
+
+def render(d: dict, level: int = 3) -> list[str]:
+    """Markdown of a figures dict: scalars as a figure | value table, dicts as sub-sections,
+    dicts of like rows as one table with a column per key."""
+    out: list[str] = []
+    scalars = [(k, v) for k, v in d.items() if not isinstance(v, dict)]
+    if scalars:
+        out += ["| figure | value |", "|---|---|"]
+        out += [f"| {fmt(k)} | {fmt(v)} |" for k, v in scalars]
+        out.append("")
+    for k, v in d.items():
+        if not isinstance(v, dict):
+            continue
+        out += [f"{'#' * min(level, 6)} {k}", ""]
+        if _is_table(v):
+            cols: list[str] = []
+            for row in v.values():
+                cols += [c for c in row if c not in cols]
+            out += ["| | " + " | ".join(fmt(c) for c in cols) + " |",
+                    "|---" * (len(cols) + 1) + "|"]
+            out += [f"| {fmt(name)} | " + " | ".join(fmt(row.get(c, "")) for c in cols) + " |"
+                    for name, row in v.items()]
+            out.append("")
+        else:
+            out += render(v, level + 1)
+    return out
+
+
+def median_results(runs: list[dict]) -> dict:
+    """Median of every numeric leaf over repeated runs (others from the last run)."""
+    def merge(vals):
+        last = vals[-1]
+        if isinstance(last, dict):
+            return {k: merge([v[k] for v in vals if isinstance(v, dict) and k in v])
+                    for k in last}
+        nums = [v for v in vals if isinstance(v, int | float) and not isinstance(v, bool)]
+        if len(nums) == len(vals) and nums:
+            m = statistics.median(nums)
+            return int(m) if all(isinstance(v, int) for v in nums) and m == int(m) else m
+        return last
+    return merge(runs)
+
+
+def run_one(path: Path, timeout: float | None, env: dict) -> dict:
     print(f"[bench] {path.stem} ...", file=sys.stderr, flush=True)
-    proc = subprocess.run([sys.executable, "-c", CHILD, str(path)], cwd=ROOT,
-                          capture_output=True, text=True)
+    t0 = time.perf_counter()
+    try:
+        proc = subprocess.run([sys.executable, "-c", CHILD, str(path)], cwd=ROOT,
+                              capture_output=True, text=True, timeout=timeout, env=env)
+    except subprocess.TimeoutExpired:
+        return {"error": f"stopped: exceeded the time budget ({timeout:.0f} s left)",
+                "wall_s": time.perf_counter() - t0}
+    wall = time.perf_counter() - t0
     sys.stderr.write(proc.stderr[-4000:])
     for line in proc.stdout.splitlines():
         if line.startswith("@@RESULT@@"):
-            return json.loads(line[len("@@RESULT@@"):])
-    return {"error": f"exit {proc.returncode}: {proc.stderr.strip().splitlines()[-1:]}"}
+            res = json.loads(line[len("@@RESULT@@"):])
+            res["wall_s"] = wall
+            return res
+    return {"error": f"exit {proc.returncode}: {proc.stderr.strip().splitlines()[-1:]}",
+            "wall_s": wall}
+
+
+def lookup(results: dict, bench: str, path: str):
+    res = results.get(bench)
+    if not res or "figures" not in res:
+        return None
+    return dict(flatten(res["figures"])).get(path)
+
+
+def target_rows(results: dict) -> list[str]:
+    lines = ["## Targets", "", "| target | required | measured | met |", "|---|---|---|---|"]
+    for label, bench, path, op, value in TARGETS:
+        got = lookup(results, bench, path)
+        if isinstance(got, int | float) and not isinstance(got, bool) and math.isfinite(got):
+            ok = got <= value if op == "<=" else abs(got - value) <= SLOPE_TOL
+            req = f"<= {value:g}" if op == "<=" else f"{value:g} +- {SLOPE_TOL:g}"
+            lines.append(f"| {label} | {req} | {got:.4g} | {'yes' if ok else 'NO'} |")
+        elif bench in results:
+            req = f"<= {value:g}" if op == "<=" else f"{value:g} +- {SLOPE_TOL:g}"
+            lines.append(f"| {label} | {req} | not measured | - |")
+    lines.append("")
+    return lines
+
+
+def _load_previous(path: Path) -> dict:
+    """Results of the previous run (``results.json``), to keep the benchmarks not re-run."""
+    try:
+        doc = json.loads(path.read_text())
+        return doc.get("results", {}) if isinstance(doc, dict) else {}
+    except (OSError, ValueError):
+        return {}
 
 
 def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("names", nargs="*")
+    ap.add_argument("--runs", type=int, default=1)
+    ap.add_argument("--repeat", type=int, default=None)
+    ap.add_argument("--budget", type=float,
+                    default=float(os.environ.get("NURBSCAN_BENCH_BUDGET", "1800")))
+    ap.add_argument("--quick", action="store_true")
+    args = ap.parse_args(argv)
+    env = dict(os.environ)
+    if args.repeat is not None:
+        env["NURBSCAN_BENCH_REPEAT"] = str(args.repeat)
+    if args.quick:
+        env["NURBSCAN_BENCH_QUICK"] = "1"
     files = sorted(HERE.glob("bench_*.py"))
-    if argv:
-        files = [f for f in files if f.stem.removeprefix("bench_") in argv]
-    results = {f.stem.removeprefix("bench_"): run_one(f) for f in files}
+    if args.names:
+        files = [f for f in files if f.stem.removeprefix("bench_") in args.names]
+    t_start = time.perf_counter()
+    results: dict = {}
+    stamp = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    rev = commit()
+    for f in files:
+        name = f.stem.removeprefix("bench_")
+        runs = []
+        for _ in range(max(1, args.runs)):
+            left = args.budget - (time.perf_counter() - t_start)
+            if left <= 0:
+                break
+            runs.append(run_one(f, left, env))
+            if "error" in runs[-1]:
+                break
+        if not runs:
+            results[name] = {"error": "skipped: the time budget was used up"}
+        elif "error" in runs[-1]:
+            results[name] = runs[-1]
+        else:
+            results[name] = {"figures": median_results([r["figures"] for r in runs]),
+                             "peak_rss_mb": max(r["peak_rss_mb"] for r in runs),
+                             "wall_s": sum(r["wall_s"] for r in runs), "runs": len(runs)}
+        results[name].update(date=stamp, commit=rev, quick=bool(args.quick))
+    total = time.perf_counter() - t_start
     lines = [
         "# Benchmark results",
         "",
-        "Written by `make bench` (`python benchmarks/run.py`); every figure is measured.",
+        "Written by `make bench` (`python benchmarks/run.py`); every figure is measured, "
+        "never typed in (each section says when).",
         "",
         f"- Machine: {machine()}",
         f"- Date: {_dt.datetime.now(_dt.UTC).strftime('%Y-%m-%d %H:%M UTC')}",
         f"- Commit: {commit()}",
+        f"- Wall time of this run: {total:.0f} s (budget {args.budget:.0f} s)"
+        + (", quick mode (reduced image sizes)" if args.quick else ""),
         "",
     ]
+    json_path = HERE / "results.json"
+    if args.names and not args.quick:  # keep the benchmarks not re-run from the last run
+        results = {**_load_previous(json_path), **results}
+    lines += target_rows(results)
     failed = False
-    for name, res in results.items():
+    for name in sorted(results):
+        res = results[name]
         lines += [f"## {name}", ""]
+        when = f" (measured {res.get('date', '?')}, commit {res.get('commit', '?')})"
         if "error" in res:
             failed = True
-            lines += [f"Failed: {res['error']}", ""]
+            lines += [f"Failed: {res['error']}{when}", ""]
             continue
-        lines += ["| figure | value |", "|---|---|"]
-        lines += [f"| {k} | {fmt(v)} |" for k, v in flatten(res["figures"])]
-        lines += [f"| peak memory of the benchmark process (MB) | {res['peak_rss_mb']:.0f} |", ""]
-    text = "\n".join(lines)
-    if not argv:
+        lines += [f"Process: {res['wall_s']:.0f} s wall time, peak memory "
+                  f"{res['peak_rss_mb']:.0f} MB (maximum resident set)"
+                  + (f"; medians of {res['runs']} processes" if res["runs"] > 1 else "")
+                  + when, ""]
+        lines += render(res["figures"])
+    text = "\n".join(lines) + "\n"
+    if not args.quick:
         (HERE / "RESULTS.md").write_text(text)
+        json_path.write_text(json.dumps({"type": "nurbscan.bench_results", "version": 1,
+                                         "machine": machine(), "results": results},
+                                        indent=1, default=float))
     print(text)
     return 1 if failed else 0
 

@@ -1,0 +1,349 @@
+"""Benchmark of the whole pipeline per stage: time, peak memory, scaling and accuracy (issue 9).
+
+``bench()`` measures, on the simulator's teapot with the default rig (camera 3072 x 2304 =
+7.1 MP, projector 1920 x 1080, default noise) and the true rig (the calibration's own accuracy is
+``bench_calibrate``'s):
+
+* **one 7.1 MP view, per stage**: pattern (create and draw), simulate (grid + white + truth),
+  detect, reconstruct split into 2-D NURBS fits + light-surface triangulation + 3-D curves and
+  network + skins + Gordon patches, image-to-Gordon (detect + reconstruct), merge into the object
+  frame, export (the model folder; ``nurbscan.export`` when it exists). Each stage: median
+  wall-clock seconds of its timed runs (``runs``) and the peak memory it allocates (one extra
+  run under :mod:`tracemalloc`, see :func:`measure`). Targets printed beside: detect <= 1 s,
+  image-to-Gordon <= 3 s.
+* **the whole demo** (simulate with calibration images, calibrate, reconstruct, merge, evaluate,
+  export) on ``DEMO_VIEWS`` views, one traced run per stage (its time includes the tracing);
+  the camera is scaled to ``$NURBSCAN_BENCH_DEMO_SIZE`` (default 1156x867, 1 MP: the
+  full-size demo renders 8 views and 23 calibration poses at 7.1 MP, about 10 minutes on 2
+  cores; ``3072x2304`` runs it at full size).
+* **scaling with image size**: 1, 2, 4, 7.1 and 12 MP (4:3, same field of view), simulate once,
+  detect and reconstruct median of runs; the slope of log(time) against log(pixels) by least
+  squares (1 = linear; target: linear in pixels).
+* **scaling with the number of views**: 1, 2, 4, 8 views at 1 MP (detect + reconstruct + merge);
+  the slope likewise.
+* **accuracy**: the single 7.1 MP view's triangulated edge points against the exact surface
+  (mean, RMS, max; the table top counts as truth too) and the demo's Table I (mean, std, min,
+  max over curves and patches, beside the paper's) with its coverage.
+
+``$NURBSCAN_BENCH_QUICK=1`` divides every image size by 4 in pixels (development runs).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import statistics
+import sys
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+QUICK = os.environ.get("NURBSCAN_BENCH_QUICK", "") not in ("", "0")
+REPEAT = int(os.environ.get("NURBSCAN_BENCH_REPEAT", "3"))
+SIZES_MP = (1.0, 2.0, 4.0, 7.08, 12.0)
+VIEW_COUNTS = (1, 2, 4, 8)
+DEMO_VIEWS = int(os.environ.get("NURBSCAN_BENCH_DEMO_VIEWS", "8"))
+TARGETS = {"detect_s": 1.0, "image_to_gordon_s": 3.0}
+
+
+def measure(fn, repeat: int = REPEAT, budget_s: float = 60.0):
+    """Peak memory of one run of ``fn``, then the median time of up to ``repeat`` runs.
+
+    The first run is traced (:mod:`tracemalloc`: Python objects and numpy arrays, including
+    OpenCV's outputs; not the C++ temporaries of OpenCV or Embree) for its peak allocation
+    above the level at its start. Then ``fn`` is timed up to ``repeat`` times while the total
+    stays under ``budget_s`` (at least once; if the traced run alone used the budget, its time
+    counts, tracing included). Returns ``(median s, timed runs, peak MB, last result)``.
+    """
+    start = time.perf_counter()
+    tracemalloc.start()
+    base = tracemalloc.get_traced_memory()[0]
+    try:
+        t = time.perf_counter()
+        out = fn()
+        traced_s = time.perf_counter() - t
+    finally:
+        peak = (tracemalloc.get_traced_memory()[1] - base) / 2**20
+        tracemalloc.stop()
+    times = []
+    for _ in range(max(1, repeat)):
+        if time.perf_counter() - start + (times[-1] if times else traced_s) > budget_s:
+            break
+        t = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t)
+    if not times:
+        times = [traced_s]
+    return statistics.median(times), len(times), peak, out
+
+
+def _row(sec: float, runs: int, mb: float, target: float | None = None) -> dict:
+    r = {"median s": round(sec, 4), "runs": runs, "peak MB": round(mb, 1)}
+    if target is not None:
+        r["target s"] = target
+        r["meets target"] = "yes" if sec <= target else "NO"
+    return r
+
+
+def size_for(mp: float) -> tuple[int, int]:
+    """A 4:3 camera of ``mp`` million pixels (the default 3072 x 2304 for 7.08)."""
+    if QUICK:
+        mp /= 4.0
+    w = int(round(math.sqrt(mp * 1e6 * 4 / 3) / 4)) * 4
+    return w, w * 3 // 4
+
+
+def slope(pixels, seconds) -> float:
+    """Least-squares slope of log(seconds) against log(pixels)."""
+    x, y = np.log(np.asarray(pixels, float)), np.log(np.asarray(seconds, float))
+    return float(np.polyfit(x, y, 1)[0])
+
+
+def point_errors(points_rig, scene, rig, angle) -> dict:
+    """Error stats of rig-frame points against the truth (scene or table top)."""
+    from nurbscan.graycode import error_stats, world_error
+
+    return {"points": int(len(points_rig)),
+            **error_stats(world_error(points_rig, scene, rig, angle))}
+
+
+def _export_fn(model, folder: Path, colour: bool = False):
+    """The export stage: ``nurbscan.export.export_model`` to glb (a coloured mesh when
+    ``colour`` and the scan is known) and 3dm (NURBS); ``Model.save`` if it is not built."""
+    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        from nurbscan.export import export_model
+    except ImportError:
+        return "Model.save (nurbscan.export not built)", lambda: model.save(folder)
+
+    def run():
+        export_model(model, folder / "model.glb", "glb", colour=colour)
+        export_model(model, folder / "model.3dm", "3dm")
+
+    return "nurbscan.export: glb mesh + 3dm NURBS", run
+
+
+# ---------------------------------------------------------------------------------- one view
+def one_view(tmp: Path) -> tuple[dict, dict]:
+    """Per-stage figures of one full-size view; also returns the render for reuse."""
+    from nurbscan.detect import detect_grid
+    from nurbscan.pattern import Pattern
+    from nurbscan.reconstruct import Model, reconstruct_view
+    from nurbscan.reconstruct.pipeline import add_view
+    from nurbscan.simulate import RenderSettings, default_rig, make_scene, render_view, scale_camera
+
+    rig = default_rig()
+    w, h = size_for(7.08)
+    if (w, h) != (rig.camera.width, rig.camera.height):
+        rig = scale_camera(rig, w, h)
+    scene = make_scene("teapot")
+    scene.mesh()
+    angle = 2 * math.pi / 8
+    out: dict = {"camera": f"{w} x {h} ({w * h / 1e6:.2f} MP)"}
+    st: dict = {}
+    out["stages"] = st
+    sec, n, mb, pattern = measure(lambda: Pattern.create(width=1920, height=1080))
+    sec2, n2, mb2, _ = measure(pattern.render)
+    st["pattern: create"] = _row(sec, n, mb)
+    st["pattern: draw the 1920 x 1080 image"] = _row(sec2, n2, mb2)
+    sec, n, mb, view = measure(lambda: render_view(scene, rig, pattern, angle, RenderSettings(),
+                                                   seed=0, stream=1), budget_s=30.0)
+    st["simulate: grid + white + truth"] = _row(sec, n, mb)
+    sec, n, mb, det = measure(lambda: detect_grid(view.grid, pattern, view.white))
+    st["detect"] = _row(sec, n, mb, TARGETS["detect_s"])
+    tri, net = [], []
+
+    def image_to_gordon():
+        r = reconstruct_view(detect_grid(view.grid, pattern, view.white), rig, pattern)
+        tri.append(r.times["triangulate_s"])
+        net.append(r.times["network_s"])
+        return r
+
+    sec, n, peak, res = measure(image_to_gordon)
+    tri, net = tri[-n:], net[-n:]
+    st["reconstruct: 2-D NURBS fits, light-surface triangulation, 3-D curves"] = _row(
+        statistics.median(tri), len(tri), float("nan"))
+    st["reconstruct: network, skins, Gordon patches"] = _row(statistics.median(net), len(net),
+                                                              float("nan"))
+    st["image-to-Gordon (detect + reconstruct)"] = _row(sec, n, peak,
+                                                         TARGETS["image_to_gordon_s"])
+    sec, n, mb, _ = measure(lambda: add_view(Model(), res, rig, 1, angle))
+    st["merge into the object frame"] = _row(sec, n, mb)
+    model = Model()
+    add_view(model, res, rig, 1, angle)
+    how, fn = _export_fn(model, tmp / "one_view_model")
+    sec, n, mb, _ = measure(fn)
+    st[f"export: {how}"] = _row(sec, n, mb)
+    out["result"] = {"edge lines": len(res.lines), "Gordon patches": len(res.patches),
+                     "complete cells / cells": f"{res.cells[0]} / {res.cells[1]}"}
+    out["accuracy: triangulated edge points (mm)"] = point_errors(res.edge_points, scene, rig,
+                                                                  angle)
+    return out, {"rig": rig, "scene": scene, "pattern": pattern, "view": view, "angle": angle,
+                 "seconds": sec}
+
+
+# ---------------------------------------------------------------------------------- scaling
+def size_scaling(reuse: dict) -> dict:
+    """Simulate / detect / image-to-Gordon seconds at each image size, and the fitted slopes."""
+    from nurbscan.detect import detect_grid
+    from nurbscan.reconstruct import reconstruct_view
+    from nurbscan.simulate import RenderSettings, default_rig, render_view, scale_camera
+
+    scene, pattern, angle = reuse["scene"], reuse["pattern"], reuse["angle"]
+    rows, px, t_sim, t_det, t_all = {}, [], [], [], []
+    for mp in SIZES_MP:
+        w, h = size_for(mp)
+        rig = scale_camera(default_rig(), w, h)
+        if (w, h) == (reuse["rig"].camera.width, reuse["rig"].camera.height):
+            view, ts = reuse["view"], float("nan")
+        else:
+            t = time.perf_counter()
+            view = render_view(scene, rig, pattern, angle, RenderSettings(), seed=0, stream=1)
+            ts = time.perf_counter() - t
+        td, _, _, _ = measure(lambda v=view: detect_grid(v.grid, pattern, v.white))
+        ta, n, _, res = measure(lambda v=view, r=rig: reconstruct_view(
+            detect_grid(v.grid, pattern, v.white), r, pattern))
+        px.append(w * h)
+        t_det.append(td)
+        t_all.append(ta)
+        if math.isfinite(ts):
+            t_sim.append((w * h, ts))
+        rows[f"{w} x {h} ({w * h / 1e6:.2f} MP)"] = {
+            "simulate s (1 run)": round(ts, 3), "detect s": round(td, 4),
+            "image-to-Gordon s": round(ta, 4), "runs": n,
+            "image-to-Gordon s per MP": round(ta / (w * h / 1e6), 4),
+            "Gordon patches": len(res.patches)}
+    out = {"sizes": rows,
+           "slope log(time) / log(pixels) (1 = linear; target: linear)": {
+               "detect": round(slope(px, t_det), 3),
+               "image-to-Gordon": round(slope(px, t_all), 3)}}
+    if len(t_sim) >= 2:
+        out["slope log(time) / log(pixels) (1 = linear; target: linear)"]["simulate"] = round(
+            slope(*zip(*t_sim, strict=True)), 3)
+    return out
+
+
+def view_scaling(reuse: dict) -> dict:
+    """Detect + reconstruct + merge seconds for 1, 2, 4, 8 views at 1 MP, and the slope."""
+    from nurbscan.detect import detect_grid
+    from nurbscan.reconstruct import Model, reconstruct_view
+    from nurbscan.reconstruct.pipeline import add_view
+    from nurbscan.simulate import RenderSettings, default_rig, render_view, scale_camera
+
+    scene, pattern = reuse["scene"], reuse["pattern"]
+    w, h = size_for(1.0)
+    rig = scale_camera(default_rig(), w, h)
+    nmax = max(VIEW_COUNTS)
+    angles = [2 * math.pi * k / nmax for k in range(nmax)]
+    views = [render_view(scene, rig, pattern, a, RenderSettings(), seed=0, stream=k)
+             for k, a in enumerate(angles)]
+
+    def run(n: int):
+        model = Model()
+        for k in range(n):
+            res = reconstruct_view(detect_grid(views[k].grid, pattern, views[k].white), rig,
+                                   pattern)
+            add_view(model, res, rig, k, angles[k])
+        return model
+
+    rows, secs = {}, []
+    for n in VIEW_COUNTS:
+        sec, runs, mb, _ = measure(lambda n=n: run(n), budget_s=40.0)
+        secs.append(sec)
+        rows[f"{n} views"] = {"median s": round(sec, 3), "runs": runs,
+                              "s per view": round(sec / n, 3), "peak MB": round(mb, 1)}
+    return {"camera": f"{w} x {h}", "views": rows,
+            "slope log(time) / log(views) (1 = linear)": round(slope(VIEW_COUNTS, secs), 3)}
+
+
+# ---------------------------------------------------------------------------------- demo
+def whole_demo(tmp: Path) -> dict:
+    """The demo's stages on ``DEMO_VIEWS`` views, one run each, with the Table I figures."""
+    from nurbscan.calibrate import calibrate_scan
+    from nurbscan.evaluate import evaluate_model
+    from nurbscan.reconstruct import reconstruct_scan
+    from nurbscan.simulate import default_rig, make_scene, scale_camera, simulate_scan
+
+    size = os.environ.get("NURBSCAN_BENCH_DEMO_SIZE", "1156x867")
+    w, h = (int(x) for x in size.lower().split("x"))
+    if QUICK:
+        w, h = w // 2, h // 2
+    rig = default_rig()
+    if (w, h) != (rig.camera.width, rig.camera.height):
+        rig = scale_camera(rig, w, h)
+    out: dict = {"camera": f"{w} x {h} ({w * h / 1e6:.2f} MP)", "views": DEMO_VIEWS,
+                 "runs per stage": 1}
+    stages: dict = {}
+
+    def stage(name, fn):
+        sec, _, mb, r = measure(fn, repeat=0, budget_s=0.0)
+        stages[name] = {"seconds": round(sec, 3), "peak MB": round(mb, 1)}
+        return r
+
+    scan = tmp / "demo" / "scan"
+    stage("simulate (views + calibration images + truth)",
+          lambda: simulate_scan(make_scene("teapot"), scan, views=DEMO_VIEWS, rig=rig))
+    try:
+        cal = stage("calibrate", lambda: calibrate_scan(scan / "calibration"))
+        crig = cal.rig
+        out["rig used"] = "calibrated"
+    except Exception as exc:  # the calibration is another stage's; report, use the true rig
+        stages["calibrate"] = {"seconds": math.nan, "peak MB": math.nan}
+        out["calibration failed"] = f"{type(exc).__name__}: {str(exc)[:120]}"
+        crig = rig
+        out["rig used"] = "true (calibration failed)"
+    model = stage("reconstruct (detect + reconstruct + merge, all views)",
+                  lambda: reconstruct_scan(scan, crig))
+    ev = stage("evaluate (Table I against the truth)",
+               lambda: evaluate_model(model, scan / "truth"))
+    how, fn = _export_fn(model, tmp / "demo" / "model", colour=True)
+    stage(f"export: {how}", fn)
+    out["total of the stages (s)"] = round(sum(v.get("seconds", 0.0)
+                                               for v in stages.values()), 3)
+    out["stages"] = stages
+    v = model.views
+    out["per view: detect s (mean)"] = float(np.mean([x["detect_s"] for x in v]))
+    out["per view: image-to-Gordon s (mean)"] = float(np.mean([x["image_to_gordon_s"]
+                                                               for x in v]))
+    table = {}
+    for row, r in ev["rows"].items():
+        paper = r.get("paper")
+        table[row] = {"n": r["n"], "mean mm": r["mean_mm"], "std mm": r["std_mm"],
+                      "min mm": r["min_mm"], "max mm": r["max_mm"],
+                      "max single sample mm": r["max_sample_mm"],
+                      "paper mean / max mm": (f"{paper['mean_mm']:.4g} / {paper['max_mm']:.4g}"
+                                              if paper else "")}
+    out["accuracy: Table I (per curve / patch, 100 samples each)"] = table
+    out["coverage of the visible surface by Gordon patches"] = ev["coverage"]
+    return out
+
+
+def bench() -> dict:
+    """All figures (module notes)."""
+    with tempfile.TemporaryDirectory(prefix="bench_pipeline_") as tmp:
+        tmp = Path(tmp)
+        t0 = time.perf_counter()
+        res: dict = {"mode": "quick (1/4 pixels)" if QUICK else "full",
+                     "repeats (median of)": REPEAT}
+        view, reuse = one_view(tmp)
+        res["one 7.1 MP view, per stage"] = view
+        print(f"[bench_pipeline] one view done {time.perf_counter() - t0:.0f} s",
+              file=sys.stderr, flush=True)
+        res["scaling with image size"] = size_scaling(reuse)
+        print(f"[bench_pipeline] size scaling done {time.perf_counter() - t0:.0f} s",
+              file=sys.stderr, flush=True)
+        res["scaling with the number of views"] = view_scaling(reuse)
+        print(f"[bench_pipeline] view scaling done {time.perf_counter() - t0:.0f} s",
+              file=sys.stderr, flush=True)
+        res["whole demo"] = whole_demo(tmp)
+        res["benchmark wall time (s)"] = round(time.perf_counter() - t0, 1)
+        return res
+
+
+if __name__ == "__main__":
+    import json
+
+    print(json.dumps(bench(), indent=1, default=float))
