@@ -16,6 +16,7 @@ import json
 import shutil
 import warnings
 
+import cv2
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -91,6 +92,40 @@ def test_camera_fit_recovers_tsai_parameters_from_noisy_corners():
     assert abs(fit.kc[4] / KC[4] - 1) < 0.05
     assert len(fit.per_view_rms) == 12
     np.testing.assert_allclose(fit.tvecs, [p[1] for p in poses], atol=0.5)
+
+
+@pytest.mark.parametrize("size", [(1024, 768), (3072, 2304)])
+def test_chessboard_corners_against_exact_homography(size):
+    """Corners of a board warped by a known homography (small images: the sector-based
+    detector at full size; large ones: found reduced, refined at full size)."""
+    from nurbscan.calibrate import detect_chessboard
+
+    w, h = size
+    nx, ny, sq = 9, 7, 40  # inner corners; square side in the source image, px
+    # source board: (nx + 1) x (ny + 1) squares, first square dark, a white margin of one square
+    ii, jj = np.meshgrid(np.arange((nx + 3) * sq), np.arange((ny + 3) * sq))
+    cell = (ii // sq - 1) + (jj // sq - 1)
+    inside = (ii >= sq) & (jj >= sq) & (ii < (nx + 2) * sq) & (jj < (ny + 2) * sq)
+    src = np.where(inside & (cell % 2 == 0), 25, 220).astype(np.uint8)
+    # inner corner (i, j) of the source at pixel edge ((i + 2) sq - 0.5, (j + 2) sq - 0.5)
+    gi, gj = np.meshgrid(np.arange(nx), np.arange(ny))
+    corners_src = np.stack([(gi.ravel() + 2) * sq - 0.5, (gj.ravel() + 2) * sq - 0.5], 1)
+    quad_src = np.float32([[0, 0], [src.shape[1], 0], [src.shape[1], src.shape[0]],
+                           [0, src.shape[0]]]) - np.float32(0.5)
+    quad_dst = (np.float32([[0.18, 0.15], [0.80, 0.12], [0.86, 0.83], [0.14, 0.90]])
+                * np.float32([w, h]))
+    M = cv2.getPerspectiveTransform(quad_src, quad_dst)
+    img = cv2.warpPerspective(src, M, (w, h), flags=cv2.INTER_LINEAR, borderValue=128)
+    img = cv2.GaussianBlur(img.astype(np.float32), (0, 0), 1.0)
+    img = np.clip(img + np.random.default_rng(1).normal(0, 1.0, img.shape), 0, 255)
+    truth = cv2.perspectiveTransform(corners_src[None].astype(np.float64), M)[0]
+    found = detect_chessboard(img.astype(np.uint8), (nx, ny), first_square_dark=True)
+    assert found is not None
+    # 9 + 7 is even: the board looks the same turned by 180 degrees, either order is right
+    err = min((np.hypot(*(c - truth).T) for c in (found, found[::-1])), key=np.max)
+    assert np.sqrt(np.mean(err**2)) < 0.05 and err.max() < 0.15
+    # a blank image has no board
+    assert detect_chessboard(np.full((h, w), 128, np.uint8), (nx, ny)) is None
 
 
 def test_camera_refuses_too_few_and_parallel_views():
