@@ -325,7 +325,8 @@ def test_calibration_of_simulated_scan_against_truth(quick_scan, quick_result):
     assert z["relative_translation_err_mm"] == 0 and z["camera"]["f_rel_err"] == 0
 
 
-def test_cli_writes_rig_residuals_and_picture(quick_scan, tmp_path):
+def test_cli_writes_rig_residuals_and_picture(quick_scan, quick_result, tmp_path):
+    """The command line (poses read in two processes) gives the API's rig (one process)."""
     from nurbscan.camera import load_rig
     from nurbscan.cli import main
 
@@ -335,11 +336,14 @@ def test_cli_writes_rig_residuals_and_picture(quick_scan, tmp_path):
         warnings.simplefilter("ignore")
         rc = main(["calibrate", str(quick_scan / "calibration"), "--pattern",
                    str(quick_scan / "pattern.json"), "-o", str(out), "--exclude", str(held),
-                   "--max-points", "400", "-q"])
+                   "--workers", "2", "-q"])
     assert rc == 0
     rig = load_rig(out)
-    true = load_rig(quick_scan / "truth" / "rig.json")
-    assert compare_rigs(rig, true)["camera"]["f_rel_err"] < 0.01
+    # the same up to rounding (threaded OpenCV and BLAS sums): far below the rig's errors
+    same = compare_rigs(rig, quick_result.rig)
+    assert same["camera"]["f_rel_err"] < 1e-7 and same["projector"]["f_rel_err"] < 1e-7
+    assert same["relative_translation_err_mm"] < 1e-4
+    assert same["turntable_axis_distance_mm"] < 1e-4
     res = json.loads((tmp_path / "calib_residuals.json").read_text())
     assert res["type"] == "nurbscan.calibration_residuals"
     assert len(res["per_view"]) == res["views_used"] == len(QUICK_FREE) + len(QUICK_TABLE) - 1

@@ -316,6 +316,20 @@ def test_reconstruct_cli_without_truth_and_evaluate(small_scan, tmp_path, capsys
     assert len(ev["views"]) == 2
 
 
+def test_views_in_two_processes_give_the_same_model(small_scan):
+    from nurbscan.camera import load_rig
+    from nurbscan.reconstruct import reconstruct_scan
+
+    rig = load_rig(small_scan / "truth" / "rig.json")
+    one = reconstruct_scan(small_scan, rig, workers=1)
+    two = reconstruct_scan(small_scan, rig, workers=2)
+    assert len(one.surfaces) == len(two.surfaces) > 0
+    for a, b in zip(one.surfaces, two.surfaces, strict=True):
+        assert (a["view"], a["kind"]) == (b["view"], b["kind"])
+        assert np.array_equal(a["surface"].control_points, b["surface"].control_points)
+    assert np.array_equal(one.points, two.points)
+
+
 def test_reconstruct_cli_errors(small_scan, tmp_path, capsys):
     from nurbscan.cli import main
 

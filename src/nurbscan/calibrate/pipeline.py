@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from .._parallel import process_map
 from ..errors import NurbscanError
 from ..io import read_image
 from ..io.atomic import read_json
@@ -196,10 +197,27 @@ def _concat(obs: list[ProjObs]) -> ProjObs:
                      for k in ("pixels", "value", "axis", "view", "sign")))
 
 
+def _read_pose(job) -> tuple[tuple[int, int], np.ndarray | None, Any]:
+    """One pose's image size ``(W, H)``, chessboard corners (None: not found) and decoded grid
+    (None when the board is not found)."""
+    from ..detect import detect_grid
+
+    wpath, gpath, pattern, inner = job
+    white = read_image(wpath)
+    c = detect_chessboard(white, inner)
+    if c is None:
+        return (white.shape[1], white.shape[0]), None, None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        det = detect_grid(read_image(gpath), pattern, white=white)
+    return (white.shape[1], white.shape[0]), c, det
+
+
 def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
                    exclude: tuple[int, ...] = (), camera_pitch: float | None = None,
                    projector_pitch: float | None = None, max_points_per_view: int = 1500,
-                   progress: Callable[[str], None] | None = None) -> CalibrationResult:
+                   progress: Callable[[str], None] | None = None,
+                   workers: int = 1) -> CalibrationResult:
     """Calibrate camera, projector and turntable from a scan's calibration images.
 
     Parameters
@@ -218,13 +236,15 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
         Projector observations kept per view (edge points, at random).
     progress : callable, optional
         Called with one line per step.
+    workers : int
+        Processes reading the poses side by side (chessboard and grid detection; 0: one per
+        CPU); the result does not depend on it.
 
     Returns
     -------
     CalibrationResult
     """
     from ..camera import Camera, Projector, Rig, Turntable
-    from ..detect import detect_grid
     from ..pattern import Pattern, load_pattern
 
     t0 = time.perf_counter()
@@ -248,16 +268,19 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
     board = target.corners()
     inner = (target.cols, target.rows)
     warn_list: list[str] = []
-    names, kinds, angles, corners, images = [], [], [], [], []
+    names, kinds, angles, corners, dets = [], [], [], [], []
     size = None
-    for p in poses:
-        wpath = root / p["white"]
-        white = read_image(wpath)
-        if size is None:
-            size = (white.shape[1], white.shape[0])
-        c = detect_chessboard(white, inner)
+    jobs = [(root / p["white"], root / p["grid"], pattern, inner) for p in poses]
+
+    def seen(i: int, res) -> None:
+        _say(progress, f"[{time.perf_counter() - t0:6.1f} s] {jobs[i][1].name}: "
+             + ("target not found" if res[1] is None else f"{res[2].nlines} lines"))
+
+    for p, (shape, c, det) in zip(poses, process_map(_read_pose, jobs, workers, done=seen),
+                                  strict=True):
+        size = size or shape
         if c is None:
-            msg = f"{wpath}: calibration target not found; pose left out"
+            msg = f"{root / p['white']}: calibration target not found; pose left out"
             warnings.warn(msg, UserWarning, stacklevel=2)
             warn_list.append(msg)
             continue
@@ -269,7 +292,7 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
         kinds.append(str(p.get("kind", "free")))
         angles.append(p.get("table_angle"))
         corners.append(c)
-        images.append((root / p["grid"], white))
+        dets.append((root / p["grid"], det))
     if len(corners) < MIN_VIEWS:
         raise NurbscanError(f"{calib_dir}: the target was found in {len(corners)} image(s); "
                             f"at least {MIN_VIEWS} are needed")
@@ -289,17 +312,14 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
             warnings.warn(msg, UserWarning, stacklevel=2)
             warn_list.append(msg)
         keep = [i for i in range(len(corners)) if i not in set(bad.tolist())]
-        names, kinds, angles, corners, images = ([lst[i] for i in keep] for lst in
-                                                 (names, kinds, angles, corners, images))
+        names, kinds, angles, corners, dets = ([lst[i] for i in keep] for lst in
+                                               (names, kinds, angles, corners, dets))
         cam = calibrate_camera(corners, board, size, *dc, names=names)
     _say(progress, f"[{time.perf_counter() - t0:6.1f} s] camera: RMS {cam.rms:.4f} px")
 
     obs = []
     rng = np.random.default_rng(0)
-    for i, (gpath, white) in enumerate(images):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            det = detect_grid(read_image(gpath), pattern, white=white)
+    for i, (gpath, det) in enumerate(dets):
         o = edge_observations(det, cam.kc, cam.rvecs[i], cam.tvecs[i], target, i, dc,
                               max_points_per_view, rng=rng)
         if len(o.view) < 50:

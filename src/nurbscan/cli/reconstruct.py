@@ -26,6 +26,9 @@ def register(sub) -> None:
                    help="only these view indices (default all)")
     p.add_argument("--min-curves", type=int, default=3,
                    help="smallest Gordon patch, curves per direction (3)")
+    p.add_argument("--workers", type=int, default=2,
+                   help="processes reconstructing views side by side, at most one per CPU "
+                        "(default 2; 0 = one per CPU); the model does not depend on it")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 
@@ -36,6 +39,8 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import NurbscanError
     from ..reconstruct import reconstruct_scan
 
+    if args.workers < 0:
+        raise NurbscanError(f"--workers {args.workers}: must be >= 0")
     if args.min_curves < 2:
         raise NurbscanError(f"--min-curves {args.min_curves}: must be at least 2")
     t0 = time.perf_counter()
@@ -46,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
     model = reconstruct_scan(args.scan, rig, progress=say, views=args.views,
-                             min_curves=args.min_curves)
+                             min_curves=args.min_curves, workers=args.workers)
     model.meta["calibration"] = str(args.calib)
     path = model.save(args.output)
     n = {k: v for k, v in model.to_dict()["counts"].items()}

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._parallel import process_map
 from ..errors import NurbscanError
 from ..io import read_image
 from ..io.atomic import read_json
@@ -97,9 +98,26 @@ def light_surface_check(res: ViewResult, rig, n_edges: int = 12, n_points: int =
     return out
 
 
+def _view_job(job: dict):
+    """Read, detect and reconstruct one view: ``(ViewResult, lines, timings)``."""
+    from ..detect import detect_grid
+
+    t0 = time.perf_counter()
+    grid = read_image(job["grid"])
+    white = read_image(job["white"]) if job["white"] is not None else None
+    t1 = time.perf_counter()
+    det = detect_grid(grid, job["pattern"], white)
+    t2 = time.perf_counter()
+    res = reconstruct_view(det, job["rig"], job["pattern"], **job["kwargs"])
+    t3 = time.perf_counter()
+    return res, det.nlines, {"read_s": round(t1 - t0, 3), "detect_s": round(t2 - t1, 3),
+                             "image_to_gordon_s": round(t3 - t1, 3)}
+
+
 def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
                      progress: Callable[[str], None] | None = None,
-                     views: list[int] | None = None, **view_kwargs) -> Model:
+                     views: list[int] | None = None, workers: int = 1,
+                     **view_kwargs) -> Model:
     """Reconstruct every view of a scan folder and merge them in the object frame.
 
     Parameters
@@ -112,10 +130,12 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
         Called with one line per view.
     views : list of int, optional
         Only these view indices (default all).
+    workers : int
+        Processes reconstructing views side by side (0: one per CPU); the model does not
+        depend on it (the per-view times do: two processes share the machine).
     **view_kwargs
         Passed to :func:`~nurbscan.reconstruct.view.reconstruct_view`.
     """
-    from ..detect import detect_grid
     from ..pattern import load_pattern
 
     scan = Path(scan_dir)
@@ -132,31 +152,32 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
     model = Model(meta={"source": str(scan), "pattern": pattern.summary()
                         if hasattr(pattern, "summary") else None})
     t_all = time.perf_counter()
-    entries = doc.get("views", [])
-    for n, v in enumerate(entries):
+    jobs = []
+    for n, v in enumerate(doc.get("views", [])):
         idx = int(v.get("index", n))
         if views is not None and idx not in views:
             continue
         angle = float(v["table_angle"])
         if unit.startswith("deg"):
-            angle = np.radians(angle)
-        t0 = time.perf_counter()
-        grid = read_image(scan / v["grid"])
-        white = read_image(scan / v["white"]) if v.get("white") else None
-        t1 = time.perf_counter()
-        det = detect_grid(grid, pattern, white)
-        t2 = time.perf_counter()
-        res = reconstruct_view(det, rig, pattern, **view_kwargs)
-        t3 = time.perf_counter()
+            angle = float(np.radians(angle))
+        jobs.append({"n": n, "index": idx, "angle": angle, "grid": scan / v["grid"],
+                     "white": scan / v["white"] if v.get("white") else None,
+                     "rig": rig, "pattern": pattern, "kwargs": view_kwargs})
+    total = len(doc.get("views", []))
+
+    def done(i: int, out) -> None:
+        res, nlines, t = out
+        if progress is not None:
+            job = jobs[i]
+            progress(f"view {job['n'] + 1}/{total} (table {np.degrees(job['angle']):.1f} deg): "
+                     f"{nlines} lines, {res.cells[0]}/{res.cells[1]} complete cells, "
+                     f"{len(res.patches)} Gordon patches, {t['image_to_gordon_s']:.1f} s "
+                     f"(detect {t['detect_s']:.1f} s)")
+
+    for job, (res, _, t) in zip(jobs, process_map(_view_job, jobs, workers, done=done),
+                                strict=True):
         if "light_surface" not in model.meta and res.lines:
             model.meta["light_surface"] = light_surface_check(res, rig)
-        add_view(model, res, rig, idx, angle,
-                 {"read_s": round(t1 - t0, 3), "detect_s": round(t2 - t1, 3),
-                  "image_to_gordon_s": round(t3 - t1, 3)})
-        if progress is not None:
-            progress(f"view {n + 1}/{len(entries)} (table {np.degrees(angle):.1f} deg): "
-                     f"{det.nlines} lines, {res.cells[0]}/{res.cells[1]} complete cells, "
-                     f"{len(res.patches)} Gordon patches, {t3 - t1:.1f} s "
-                     f"(detect {t2 - t1:.1f} s)")
+        add_view(model, res, rig, job["index"], job["angle"], t)
     model.meta["total_s"] = round(time.perf_counter() - t_all, 3)
     return model

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from .._parallel import process_map, worker_count
 from ..errors import NurbscanError
 from ..io import write_image, write_json
 from ..io.atomic import atomic_path
@@ -121,8 +122,7 @@ def simulate_scan(scene, out_dir: str | os.PathLike, views: int = 8, rig=None,
     pattern = pattern or default_pattern(rig.projector)
     board = board or Chessboard()
     out = Path(out_dir)
-    cpus = os.cpu_count() or 1
-    workers = max(1, min(int(workers) or cpus, cpus))
+    workers = worker_count(workers)
     t0 = time.perf_counter()
 
     def say(msg: str) -> None:
@@ -139,7 +139,8 @@ def simulate_scan(scene, out_dir: str | os.PathLike, views: int = 8, rig=None,
     if workers == 1:
         results = _render_here(ctx, jobs, say)
     else:
-        results = _render_in_processes(ctx, jobs, say, workers, max(1, cpus // workers))
+        results = _render_in_processes(ctx, jobs, say, workers,
+                                       max(1, (os.cpu_count() or 1) // workers))
     view_list = [r["entry"] for r in results if r["kind"] == "view"]
     poses = [r["entry"] for r in results if r["kind"] != "view"]
     if calibration:
@@ -270,22 +271,12 @@ def _job_in_worker(job: dict[str, Any]) -> dict[str, Any]:
 
 def _render_in_processes(ctx: _JobContext, jobs, say, workers: int, threads: int):
     """Render in ``workers`` processes, each writing its own files."""
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
     spec = ctx.scene.to_dict() if hasattr(ctx.scene, "to_dict") else None
     wctx = _JobContext(None if spec is not None else ctx.scene, ctx.rig, ctx.pattern,
                        ctx.settings, ctx.seed, ctx.out, threads)
-    # spawn: the parent may hold threads (Embree, BLAS) that fork would copy half-way
-    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                             initializer=_init_worker, initargs=(wctx, spec)) as pool:
-        futures = {pool.submit(_job_in_worker, job): n for n, job in enumerate(jobs)}
-        results: list[Any] = [None] * len(jobs)
-        for f in as_completed(futures):
-            res = f.result()
-            say(f"{res['head']}: rendered and written")
-            results[futures[f]] = res
-    return results
+    return process_map(_job_in_worker, jobs, workers,
+                       done=lambda i, res: say(f"{res['head']}: rendered and written"),
+                       initializer=_init_worker, initargs=(wctx, spec))
 
 
 def _transform(turntable, angle: float) -> tuple[np.ndarray, np.ndarray]:
