@@ -397,15 +397,40 @@ def test_dominance_finds_edge_pixels_next_to_a_crossing_band():
 def test_low_dominance_raises_teapot_coverage(teapot, teapot_result):
     """Lower ``dominance`` (edge pixels next to a crossing band's corner join their lines, so
     more lines are traced through and labelled) with strict pairing (``corner_keep``): more
-    coverage at the same label correctness (measured: coverage 0.452 -> 0.487, labels 99.86 %,
-    rms 0.062 px); the intersections stay within 0.3 px at p95 (one of 2466 is 240 px off:
-    a known defect of this option, so the intersection RMS is not asserted)."""
+    coverage at the same label correctness (measured: coverage 0.449 -> 0.467, labels 99.89 %,
+    rms 0.056 px; before the stricter clean-crossing test and ``min_width``: 0.452 -> 0.487);
+    the intersections stay within 0.3 px at p95 (one of 2466 is 240 px off: a known defect
+    of this option, so the intersection RMS is not asserted)."""
     v, pat = teapot
     base = evaluate_detection(teapot_result, v.truth, pat)
     r = detect_grid(v.grid, pat, v.white, dominance=0.5, corner_keep=1.0, refit_residual=0.15)
     ev = evaluate_detection(r, v.truth, pat)
-    assert ev["coverage"] > base["coverage"] + 0.03, (base, ev)
+    assert ev["coverage"] > base["coverage"] + 0.012, (base, ev)
     assert ev["label_rate"] >= 0.995, ev
     assert ev["wrong_lines_over_20px"] == 0, ev
     assert ev["rms_px"] < 0.08, ev
     assert ev["intersection_p95_px"] < 0.3, ev
+
+
+def test_clean_crossings_need_dark_gaps_on_both_sides():
+    """A crossing inside a lit band of the other direction (a gap lit on one or both sides) is
+    not clean; one between dark gaps is, also when only one side's gap is wide."""
+    from nurbscan.detect.core import clean_crossings
+
+    sig = np.zeros((40, 200), np.float32)
+    sig[20:, :] = 1.0  # rows 20.. lie inside a band of the other direction
+    sig[9:12, 60:64] = 1.0  # a lit patch right of the second crossing, in row 10
+    # one row of three bands (rising, falling) at x = 20-28, 50-58, 90-98
+    xs = np.array([20.0, 28.0, 50.0, 58.0, 90.0, 98.0])
+    a = np.r_[xs, xs, xs]
+    r = np.repeat([5, 10, 25], 6)
+    st = np.array([0, 2, 4, 6, 8, 10, 12, 14, 16])
+    got = clean_crossings(sig, a, r, st, 0, 3.5, 0.35)
+    assert got.tolist() == [True, True, True, True, False, True, False, False, False]
+    # the same in columns (horizontal bands): transpose the signal
+    got_t = clean_crossings(np.ascontiguousarray(sig.T), a, r, st, 1, 3.5, 0.35)
+    assert got_t.tolist() == got.tolist()
+    # a neighbouring edge point closer than delta + 1 px to an edge: the gap is not sampled
+    a2 = np.array([20.0, 28.0, 31.0, 40.0])
+    r2 = np.zeros(4, np.int64)
+    assert clean_crossings(sig, a2, r2, np.array([0]), 0, 3.5, 0.35).tolist() == [False]
