@@ -290,6 +290,14 @@ def test_reconstruct_cli_without_truth_and_evaluate(small_scan, tmp_path, capsys
                  str(tmp_path / "model"), "-q"]) == 0
     model = load_model(tmp_path / "model")
     assert len(model.views) == 2
+    # the detected lines of each view as a picture: the decoded lines are drawn in full
+    # colour over the photograph dimmed to 35 % (at most 89 of 255 alone)
+    import cv2
+
+    for k in (0, 1):
+        pic = cv2.imread(str(tmp_path / "model" / "overlays" / f"view_{k:02d}_overlay.png"))
+        assert pic is not None and pic.shape == (576, 768, 3)
+        assert np.mean(pic.max(axis=2) > 150) > 0.01
     assert len(model.surfaces_of("gordon")) >= 2
     assert len(model.points) > 100 and np.allclose(np.linalg.norm(model.normals, axis=1), 1)
     ls = model.meta["light_surface"]

@@ -16,7 +16,8 @@ def register(sub) -> None:
             "Detect the grid in every view of a scan folder, triangulate its labelled edge "
             "lines with the calibrated rig, build the curve network, skins and Gordon "
             "surfaces, merge the views in the turntable frame and write the model folder "
-            "(model.json, points.npz, model.png; docs/model-format.md). Never reads truth/."))
+            "(model.json, points.npz, model.png, overlays/view_KK_overlay.png with the "
+            "detected lines of each view; docs/model-format.md). Never reads truth/."))
     p.add_argument("scan", type=Path, help="scan folder (with scan.json)")
     p.add_argument("--calib", type=Path, required=True,
                    help="calibrated rig (calib.json from 'nurbscan calibrate')")
@@ -51,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
     model = reconstruct_scan(args.scan, rig, progress=say, views=args.views,
-                             min_curves=args.min_curves, workers=args.workers)
+                             min_curves=args.min_curves, workers=args.workers,
+                             overlays=Path(args.output) / "overlays")
     model.meta["calibration"] = str(args.calib)
     path = model.save(args.output)
     n = {k: v for k, v in model.to_dict()["counts"].items()}

@@ -101,7 +101,6 @@ def visible_samples(scene, truth_dir: Path, n: int = 20000, seed: int = 0):
         with np.load(f) as z:
             sid = z["surface_id"]
             q = z["point_obj"][sid >= 0]
-            depth = z["depth"][sid >= 0]
         if len(q) < 2:
             continue
         tree = cKDTree(q)
@@ -111,7 +110,6 @@ def visible_samples(scene, truth_dir: Path, n: int = 20000, seed: int = 0):
         foot = float(np.median(dd[:, 1]))
         dist, _ = tree.query(P, k=1, distance_upper_bound=4 * foot)
         seen[:, k] = dist <= 2.0 * foot
-        del depth
     return P, seen, index
 
 

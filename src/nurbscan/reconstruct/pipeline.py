@@ -98,6 +98,21 @@ def light_surface_check(res: ViewResult, rig, n_edges: int = 12, n_points: int =
     return out
 
 
+def _write_overlay(path: Path, image: np.ndarray, det, pattern, width: int = 1536) -> None:
+    """The detected-line picture of a view (:func:`nurbscan.detect.draw_overlay`), reduced to
+    ``width`` px (area averaging)."""
+    import cv2
+
+    from ..detect import draw_overlay
+    from ..io import write_image
+
+    rgb = draw_overlay(image, det, pattern)
+    if rgb.shape[1] > width:
+        h = round(rgb.shape[0] * width / rgb.shape[1])
+        rgb = cv2.resize(rgb, (width, h), interpolation=cv2.INTER_AREA)
+    write_image(path, rgb)
+
+
 def _view_job(job: dict):
     """Read, detect and reconstruct one view: ``(ViewResult, lines, timings)``."""
     from ..detect import detect_grid
@@ -110,6 +125,8 @@ def _view_job(job: dict):
     t2 = time.perf_counter()
     res = reconstruct_view(det, job["rig"], job["pattern"], **job["kwargs"])
     t3 = time.perf_counter()
+    if job.get("overlay") is not None:
+        _write_overlay(job["overlay"], grid, det, job["pattern"])
     return res, det.nlines, {"read_s": round(t1 - t0, 3), "detect_s": round(t2 - t1, 3),
                              "image_to_gordon_s": round(t3 - t1, 3)}
 
@@ -117,7 +134,7 @@ def _view_job(job: dict):
 def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
                      progress: Callable[[str], None] | None = None,
                      views: list[int] | None = None, workers: int = 1,
-                     **view_kwargs) -> Model:
+                     overlays: str | os.PathLike | None = None, **view_kwargs) -> Model:
     """Reconstruct every view of a scan folder and merge them in the object frame.
 
     Parameters
@@ -133,6 +150,9 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
     workers : int
         Processes reconstructing views side by side (0: one per CPU); the model does not
         depend on it (the per-view times do: two processes share the machine).
+    overlays : path-like, optional
+        Folder to write each view's detected lines into (``view_KK_overlay.png``, 1536 px
+        wide), the picture a person checks the decoding on.
     **view_kwargs
         Passed to :func:`~nurbscan.reconstruct.view.reconstruct_view`.
     """
@@ -162,7 +182,9 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
             angle = float(np.radians(angle))
         jobs.append({"n": n, "index": idx, "angle": angle, "grid": scan / v["grid"],
                      "white": scan / v["white"] if v.get("white") else None,
-                     "rig": rig, "pattern": pattern, "kwargs": view_kwargs})
+                     "rig": rig, "pattern": pattern, "kwargs": view_kwargs,
+                     "overlay": None if overlays is None
+                     else Path(overlays) / f"view_{idx:02d}_overlay.png"})
     total = len(doc.get("views", []))
 
     def done(i: int, out) -> None:
