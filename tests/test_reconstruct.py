@@ -345,3 +345,18 @@ def test_reconstruct_cli_errors(small_scan, tmp_path, capsys):
                  str(small_scan / "truth" / "rig.json"), "-o", str(tmp_path / "m")]) == 2
     assert "scan.json" in capsys.readouterr().err
     assert main(["evaluate", str(tmp_path / "nope"), "--truth", str(small_scan / "truth")]) == 2
+
+
+def test_validated_runs_need_three_agreeing_crossings():
+    """A run over one band of the other direction (two crossings) bounds no cell: not kept."""
+    from nurbscan.reconstruct.network import _validated_runs
+
+    params = np.array([10.0, 16.0, 26.0, 32.0, 42.0, 48.0, 58.0])
+    seg = np.array([0, 0, 0, 0, 0, 1, 1])
+    good = np.array([True, True, False, True, True, True, True])
+    # 10-16: two crossings; 32-42: two (48 is another interval); 48-58: two
+    assert _validated_runs(params, seg, good) == []
+    good[2] = True
+    assert _validated_runs(params, seg, good) == [(10.0, 42.0, 0)]
+    assert _validated_runs(params, seg, good, min_crossings=2) == [(10.0, 42.0, 0),
+                                                                   (48.0, 58.0, 1)]

@@ -253,10 +253,15 @@ def complete_cells(vlines: list[NetLine], hlines: list[NetLine], crossing_tol: f
     return ok, X
 
 
-def _validated_runs(params: np.ndarray, seg: np.ndarray, good: np.ndarray) -> list:
+def _validated_runs(params: np.ndarray, seg: np.ndarray, good: np.ndarray,
+                    min_crossings: int = 3) -> list:
     """Runs of consecutive crossings of one line that all agree, inside one interval.
 
-    Returns ``(lo, hi, interval)`` parameter ranges spanning at least two crossings.
+    Returns ``(lo, hi, interval)`` parameter ranges spanning at least ``min_crossings``
+    crossings. Two crossings are the two edges of one band of the other direction, a band
+    width apart: such a run bounds no cell, and near an occluding contour, where the short
+    runs are, it is the least reliable part of a line (7.1 MP teapot: stubs 1.2 mm long
+    0.2 mm off the surface, against 0.004 mm for the rest).
     """
     runs = []
     n = len(params)
@@ -268,7 +273,7 @@ def _validated_runs(params: np.ndarray, seg: np.ndarray, good: np.ndarray) -> li
         j = i
         while j + 1 < n and good[j + 1] and seg[j + 1] == seg[i]:
             j += 1
-        if j > i:
+        if j - i + 1 >= min_crossings:
             runs.append((float(params[i]), float(params[j]), int(seg[i])))
         i = j + 1
     return runs
@@ -407,8 +412,9 @@ def line_curves(vlines, hlines) -> list[tuple[str, NetLine, NurbsCurve]]:
     """The validated parts of the network's 3-D curves: (direction, line, curve).
 
     A line's curve is kept between consecutive crossings where it agrees with the curves of the
-    other direction (within the crossing tolerance), over runs of at least two such crossings
-    (:func:`complete_cells` finds them): the parts of the edge lines that the network confirms.
+    other direction (within the crossing tolerance), over runs of at least three such crossings
+    (:func:`complete_cells` finds them; three crossings: beyond one band of the other
+    direction): the parts of the edge lines that the network confirms.
     A mislabelled chain, or a stretch bridged over a depth step, meets the other family
     nowhere, or disagrees with it, and is left out.
     """
