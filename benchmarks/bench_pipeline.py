@@ -11,11 +11,11 @@
   wall-clock seconds of its timed runs (``runs``) and the peak memory it allocates (one extra
   run under :mod:`tracemalloc`, see :func:`measure`). Targets printed beside: detect <= 1 s,
   image-to-Gordon <= 3 s.
-* **the whole demo** (simulate with calibration images, calibrate, reconstruct, merge, evaluate,
-  export) on ``DEMO_VIEWS`` views, one traced run per stage (its time includes the tracing);
-  the camera is scaled to ``$NURBSCAN_BENCH_DEMO_SIZE`` (default 1156x867, 1 MP: the
-  full-size demo renders 8 views and 23 calibration poses at 7.1 MP, about 10 minutes on 2
-  cores; ``3072x2304`` runs it at full size).
+* **the whole demo**: ``nurbscan demo`` itself (what ``make demo`` runs: 8 views and 17
+  calibration poses at 7.1 MP, simulate, calibrate from the images, reconstruct, evaluate,
+  export, report; ``$NURBSCAN_BENCH_DEMO_VIEWS`` views, 2 in quick runs) in a fresh process,
+  once: the time of each stage from its progress lines, the total, the largest process's peak
+  memory, and the Table I figures and coverage it writes.
 * **scaling with image size**: 1, 2, 4, 7.1 and 12 MP (4:3, same field of view), simulate once,
   detect and reconstruct median of runs; the slope of log(time) against log(pixels) by least
   squares (1 = linear; target: linear in pixels).
@@ -23,7 +23,8 @@
   the slope likewise.
 * **accuracy**: the single 7.1 MP view's triangulated edge points against the exact surface
   (mean, RMS, max; the table top counts as truth too) and the demo's Table I (mean, std, min,
-  max over curves and patches, beside the paper's) with its coverage.
+  max over curves and patches, beside the paper's; rig calibrated from the simulated images)
+  with its coverage.
 
 ``$NURBSCAN_BENCH_QUICK=1`` divides every image size by 4 in pixels (development runs).
 """
@@ -261,53 +262,34 @@ def view_scaling(reuse: dict) -> dict:
 
 # ---------------------------------------------------------------------------------- demo
 def whole_demo(tmp: Path) -> dict:
-    """The demo's stages on ``DEMO_VIEWS`` views, one run each, with the Table I figures."""
-    from nurbscan.calibrate import calibrate_scan
-    from nurbscan.evaluate import evaluate_model
-    from nurbscan.reconstruct import reconstruct_scan
-    from nurbscan.simulate import default_rig, make_scene, scale_camera, simulate_scan
+    """``nurbscan demo`` in a fresh process: stage times, peak memory, Table I, coverage."""
+    import json
+    import re
+    import resource
+    import subprocess
 
-    size = os.environ.get("NURBSCAN_BENCH_DEMO_SIZE", "1156x867")
-    w, h = (int(x) for x in size.lower().split("x"))
-    if QUICK:
-        w, h = w // 2, h // 2
-    rig = default_rig()
-    if (w, h) != (rig.camera.width, rig.camera.height):
-        rig = scale_camera(rig, w, h)
-    out: dict = {"camera": f"{w} x {h} ({w * h / 1e6:.2f} MP)", "views": DEMO_VIEWS,
-                 "runs per stage": 1}
-    stages: dict = {}
-
-    def stage(name, fn):
-        sec, _, mb, r = measure(fn, repeat=0, budget_s=0.0)
-        stages[name] = {"seconds": round(sec, 3), "peak MB": round(mb, 1)}
-        return r
-
-    scan = tmp / "demo" / "scan"
-    stage("simulate (views + calibration images + truth)",
-          lambda: simulate_scan(make_scene("teapot"), scan, views=DEMO_VIEWS, rig=rig))
-    try:
-        cal = stage("calibrate", lambda: calibrate_scan(scan / "calibration"))
-        crig = cal.rig
-        out["rig used"] = "calibrated"
-    except Exception as exc:  # the calibration is another stage's; report, use the true rig
-        stages["calibrate"] = {"seconds": math.nan, "peak MB": math.nan}
-        out["calibration failed"] = f"{type(exc).__name__}: {str(exc)[:120]}"
-        crig = rig
-        out["rig used"] = "true (calibration failed)"
-    model = stage("reconstruct (detect + reconstruct + merge, all views)",
-                  lambda: reconstruct_scan(scan, crig))
-    ev = stage("evaluate (Table I against the truth)",
-               lambda: evaluate_model(model, scan / "truth"))
-    how, fn = _export_fn(model, tmp / "demo" / "model", colour=True)
-    stage(f"export: {how}", fn)
-    out["total of the stages (s)"] = round(sum(v.get("seconds", 0.0)
-                                               for v in stages.values()), 3)
+    views = 2 if QUICK else DEMO_VIEWS
+    folder = tmp / "demo"
+    t0 = time.perf_counter()
+    run = subprocess.run([sys.executable, "-m", "nurbscan", "demo", "-o", str(folder),
+                          "--views", str(views)], capture_output=True, text=True)
+    total = time.perf_counter() - t0
+    out: dict = {"command": f"nurbscan demo --views {views} (camera 3072 x 2304)",
+                 "views": views}
+    if run.returncode:
+        out["failed"] = (run.stderr.strip().splitlines() or ["?"])[-1][:200]
+        return out
+    marks = [(float(t), name) for t, name in
+             re.findall(r"^\[demo\s+([\d.]+) s\] (.+)$", run.stderr, flags=re.M)]
+    stages = {name: {"seconds": round(b - a, 1)}
+              for (a, name), (b, _) in zip(marks[:-1], marks[1:], strict=True)}
+    out["total (s)"] = round(total, 1)
+    out["target (s)"] = 300.0
+    out["meets target"] = "yes" if total <= 300.0 else "NO"
+    out["peak memory of the largest process (MB)"] = round(
+        resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0, 1)
     out["stages"] = stages
-    v = model.views
-    out["per view: detect s (mean)"] = float(np.mean([x["detect_s"] for x in v]))
-    out["per view: image-to-Gordon s (mean)"] = float(np.mean([x["image_to_gordon_s"]
-                                                               for x in v]))
+    ev = json.loads((folder / "evaluation.json").read_text())
     table = {}
     for row, r in ev["rows"].items():
         paper = r.get("paper")
