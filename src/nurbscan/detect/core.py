@@ -42,8 +42,10 @@ def as_float_image(image, what: str = "image", gamma: float = 1.0) -> np.ndarray
     a = a[:, :, :3]
     if a.dtype in (np.uint8, np.uint16):
         top = 255 if a.dtype == np.uint8 else 65535
-        lut = (np.arange(top + 1, dtype=np.float64) / top) ** gamma
-        return lut.astype(np.float32)[a]
+        lut = ((np.arange(top + 1, dtype=np.float64) / top) ** gamma).astype(np.float32)
+        if a.dtype == np.uint8:  # OpenCV's table look-up: same values, several times faster
+            return cv2.LUT(np.ascontiguousarray(a), lut)
+        return lut[a]
     if a.dtype.kind not in "fiu":
         raise NurbscanError(f"{what}: unsupported sample type {a.dtype}")
     a = a.astype(np.float32)
