@@ -315,6 +315,11 @@ def test_reconstruct_cli_without_truth_and_evaluate(small_scan, tmp_path, capsys
         assert {"mean_mm", "std_mm", "min_mm", "max_mm"} <= set(r)
     assert 0 < ev["coverage"] <= 1
     assert ev_path.with_suffix(".md").exists()
+    # the command line computes what the views see in a second process: same figures
+    from nurbscan.evaluate import evaluate_model
+
+    here = evaluate_model(model, small_scan / "truth", workers=1)
+    assert here["coverage"] == ev["coverage"] and here["rows"]["gordon"] == ev["rows"]["gordon"]
     rows = ev["rows"]
     # a quarter-resolution camera (pixels 4x larger than the paper's) still beats the paper
     assert rows["gordon"]["mean_mm"] < 0.05 and rows["gordon"]["max_mm"] < 0.2

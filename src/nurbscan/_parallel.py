@@ -66,3 +66,25 @@ def process_map(fn: Callable[[Any], Any], items: Sequence[Any] | Iterable[Any],
             if done is not None:
                 done(i, results[i])
     return results
+
+
+def in_background(fn: Callable[..., Any], *args: Any, parallel: bool = True
+                  ) -> Callable[[], Any]:
+    """Start ``fn(*args)`` in a spawned process; return a function that waits for its result.
+
+    With ``parallel`` false (or one CPU) ``fn`` runs here, at once, and the returned function
+    gives its result. ``fn`` and ``args`` are pickled, as for :func:`process_map`.
+    """
+    if not parallel or worker_count(0) < 2:
+        result = fn(*args)
+        return lambda: result
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"))
+    future = pool.submit(fn, *args)
+
+    def wait() -> Any:
+        try:
+            return future.result()
+        finally:
+            pool.shutdown()
+
+    return wait

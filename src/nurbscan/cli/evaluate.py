@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.cover_tol > 0:
         raise NurbscanError(f"--cover-tol {args.cover_tol}: must be positive")
     model = load_model(args.model)
-    ev = evaluate_model(model, args.truth, cover_tol=args.cover_tol)
+    ev = evaluate_model(model, args.truth, cover_tol=args.cover_tol, workers=2)
     out = args.output or (args.model / "evaluation.json")
     write_json(out, ev)
     md = format_table(ev)

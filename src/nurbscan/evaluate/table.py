@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .._parallel import in_background
 from ..errors import NurbscanError
 from ..io.atomic import read_json
 
@@ -83,6 +84,12 @@ def entity_errors(model, scene, n: int = 100) -> dict:
     return out
 
 
+def _visible_job(spec: dict, truth_dir: Path, n: int):
+    from ..simulate.scenes import scene_from_dict
+
+    return visible_samples(scene_from_dict(spec), truth_dir, n)
+
+
 def visible_samples(scene, truth_dir: Path, n: int = 20000, seed: int = 0):
     """Area-uniform samples of the true surface, and which views' cameras see each one.
 
@@ -138,7 +145,7 @@ def gordon_cloud(model, spacing: float = 0.35, max_per_side: int = 1500):
 
 
 def evaluate_model(model, truth_dir: str | os.PathLike, n_samples: int = 100,
-                   n_coverage: int = 20000, cover_tol: float = 0.5) -> dict:
+                   n_coverage: int = 20000, cover_tol: float = 0.5, workers: int = 1) -> dict:
     """Table I figures, coverage and a per-view breakdown of a model against the truth.
 
     Parameters
@@ -153,6 +160,10 @@ def evaluate_model(model, truth_dir: str | os.PathLike, n_samples: int = 100,
         True-surface samples for the coverage.
     cover_tol : float
         Largest distance (mm) from a true sample to a Gordon patch sample to count as covered.
+    workers : int
+        1 computes everything here; otherwise what the views see (:func:`visible_samples`)
+        is computed in a second process beside the entity errors. The figures do not depend
+        on it.
 
     Returns
     -------
@@ -166,7 +177,10 @@ def evaluate_model(model, truth_dir: str | os.PathLike, n_samples: int = 100,
     truth = Path(truth_dir)
     if not (truth / "scene.json").exists():
         raise NurbscanError(f"{truth}: no scene.json (expected a scan's truth/ folder)")
-    scene = scene_from_dict(read_json(truth / "scene.json"))
+    spec = read_json(truth / "scene.json")
+    scene = scene_from_dict(spec)
+    # which true points the views see (reads every view's truth) runs beside the entity errors
+    seen_job = in_background(_visible_job, spec, truth, n_coverage, parallel=workers != 1)
     errs = entity_errors(model, scene, n_samples)
     rows = {}
     for row, e in errs.items():
@@ -174,7 +188,7 @@ def evaluate_model(model, truth_dir: str | os.PathLike, n_samples: int = 100,
         st["label"] = ROWS[row][2]
         st["paper"] = dict(zip(("mean_mm", "std_mm", "min_mm", "max_mm"), PAPER[row], strict=True))
         rows[row] = st
-    P, seen, vindex = visible_samples(scene, truth, n_coverage)
+    P, seen, vindex = seen_job()
     G, gv = gordon_cloud(model)
     vis = seen.any(1)
     covered = np.zeros(len(P), bool)
