@@ -23,7 +23,7 @@ from ..errors import NurbscanError
 from .decode import band_crossings, bilinear, classify_colours, line_labels, window_votes
 from .edges import detect_edge_points, refine_by_channels
 from .lines import join_collinear, local_residual, neighbour_fit, trace_lines
-from .normalize import channel_max, normalize
+from .normalize import normalize
 from .result import DetectionResult
 
 
@@ -53,6 +53,19 @@ def as_float_image(image, what: str = "image", gamma: float = 1.0) -> np.ndarray
         raise NurbscanError(f"{what}: holds NaN or infinite values")
     a = np.clip(a, 0.0, None)
     return a**gamma if gamma != 1 else a
+
+
+def as_float_planes(image, what: str = "image", gamma: float = 1.0) -> tuple:
+    """The three colour planes of :func:`as_float_image`, each (H, W) float32 and contiguous.
+
+    8-bit images are split first and each plane looked up (OpenCV), which avoids an
+    interleaved (H, W, 3) float copy and its split: 60 instead of 135 ms for 7.1 MP.
+    """
+    a = np.asarray(image)
+    if a.dtype == np.uint8 and a.ndim == 3 and a.shape[2] in (3, 4) and min(a.shape[:2]) >= 16:
+        lut = ((np.arange(256, dtype=np.float64) / 255) ** gamma).astype(np.float32)
+        return tuple(cv2.LUT(c, lut) for c in cv2.split(np.ascontiguousarray(a[:, :, :3])))
+    return tuple(cv2.split(as_float_image(image, what, gamma)))
 
 
 def _fit_line(t: np.ndarray, v: np.ndarray, wts: np.ndarray) -> np.ndarray:
@@ -614,20 +627,21 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                             "0 < dominance <= 1 and corner_keep >= 0")
     if unrefined not in ("keep", "fit", "drop"):
         raise NurbscanError(f"unrefined={unrefined!r}: must be 'keep', 'fit' or 'drop'")
-    lin = as_float_image(image, gamma=gamma)
-    h, w = lin.shape[:2]
+    lin = as_float_planes(image, gamma=gamma)
+    h, w = lin[0].shape
     wl = None
     if white is not None:
-        wl = as_float_image(white, "white image", gamma=gamma)
-        if wl.shape != lin.shape:
-            raise NurbscanError(f"white image: size {wl.shape[1]}x{wl.shape[0]} does not "
-                                f"match the grid image's {w}x{h}")
+        wl = as_float_planes(white, "white image", gamma=gamma)
+        if wl[0].shape != lin[0].shape:
+            raise NurbscanError(f"white image: size {wl[0].shape[1]}x{wl[0].shape[0]} does "
+                                f"not match the grid image's {w}x{h}")
 
     def give_up(msg: str) -> DetectionResult:
         _warnings.warn(msg, UserWarning, stacklevel=3)
         return DetectionResult.empty((w, h), (msg,))
 
-    sub = channel_max(lin[::4, ::4])  # screening on a subsample
+    sub = np.maximum(np.maximum(lin[0][::4, ::4], lin[1][::4, ::4]), lin[2][::4, ::4])
+    # (screening on a subsample)
     if np.percentile(sub, 99.5) < 0.08**gamma:
         return give_up("image: too dark (black), no grid found")
     if np.mean(sub > 0.98**gamma) > 0.5:

@@ -93,16 +93,30 @@ class Normalised:
         return np.stack([c * i for c, i in zip(self.channels, inv, strict=True)], axis=2)
 
 
+def _planes(image, what: str) -> tuple:
+    """Three contiguous (H, W) float32 planes of an (H, W, 3) array or a sequence of 3 planes."""
+    if isinstance(image, tuple | list):
+        planes = tuple(np.ascontiguousarray(c, dtype=np.float32) for c in image)
+        if len(planes) == 3 and all(p.ndim == 2 and p.shape == planes[0].shape
+                                    for p in planes):
+            return planes
+        raise NurbscanError(f"{what}: expected 3 colour planes of one size")
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise NurbscanError(f"{what}: expected an (H, W, 3) colour image, got shape {img.shape}")
+    return tuple(cv2.split(img))
+
+
 def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 31,
               floor: float = 0.03) -> Normalised:
     """Normalise a (linear) grid image for albedo, shading and illumination.
 
     Parameters
     ----------
-    image : ndarray (H, W, 3), float32, linear in the light
+    image : ndarray (H, W, 3), float32, linear in the light, or its three (H, W) planes
         The photograph of the object under the grid.
-    white : ndarray (H, W, 3), optional
-        The same view under full white light; must have the image's shape.
+    white : ndarray (H, W, 3) or three planes, optional
+        The same view under full white light; must have the image's size.
     window : int
         Side of the local minimum / maximum filters (dark level, and the envelope when there is
         no white image), camera px (about two band pitches).
@@ -114,21 +128,19 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
     Normalised
         The edge signal, the valid mask and what is needed to read colours at points.
     """
-    img = np.asarray(image, dtype=np.float32)
-    if img.ndim != 3 or img.shape[2] != 3:
-        raise NurbscanError(f"image: expected an (H, W, 3) colour image, got shape {img.shape}")
-    chans = cv2.split(img)
+    chans = chans_in = _planes(image, "image")
     # dark level: local minimum of the grid image (ambient light in the black gaps)
-    dark = smooth_field(channel_min(img), window / 3, "min", window)
+    dark = smooth_field(cv2.min(cv2.min(chans[0], chans[1]), chans[2]), window / 3, "min",
+                        window)
     chans = tuple(cv2.subtract(c, dark) for c in chans)
     if white is not None:
-        wht = np.asarray(white, dtype=np.float32)
-        if wht.shape != img.shape:
+        wp = _planes(white, "white image")
+        if wp[0].shape != chans[0].shape:
             raise NurbscanError(
-                f"white image: size {wht.shape[1]}x{wht.shape[0]} does not match the grid "
-                f"image's {img.shape[1]}x{img.shape[0]}"
+                f"white image: size {wp[0].shape[1]}x{wp[0].shape[0]} does not match the grid "
+                f"image's {chans[0].shape[1]}x{chans[0].shape[0]}"
             )
-        wc = cv2.split(cv2.GaussianBlur(wht, (0, 0), 0.7))
+        wc = [cv2.GaussianBlur(c, (0, 0), 0.7) for c in wp]
         dens = [cv2.subtract(c, dark) for c in wc]
         valid = np.maximum(np.maximum(dens[0], dens[1]), dens[2]) > floor
         for d in dens:  # 1 / max(d, floor), in place (no fresh 28 MB arrays)
@@ -136,7 +148,8 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
             np.reciprocal(d, out=d)
         inv = tuple(dens)
     else:
-        env = smooth_field(channel_max(img), window / 3, "max", window)
+        env = smooth_field(cv2.max(cv2.max(chans_in[0], chans_in[1]), chans_in[2]),
+                           window / 3, "max", window)
         den = env - dark
         valid = den > floor
         inv = (1.0 / np.maximum(den, floor),)
