@@ -399,14 +399,15 @@ def test_low_dominance_raises_teapot_coverage(teapot, teapot_result):
     """Lower ``dominance`` (edge pixels next to a crossing band's corner join their lines, so
     more lines are traced through and labelled) with strict pairing (``corner_keep``): more
     coverage at the same label correctness (measured: coverage 0.478 -> 0.521, labels 99.97 %,
-    rms 0.057 px);
+    rms 0.057 px; since the default also labels lines by interpolation between labelled
+    neighbours: 0.509 -> 0.529, labels 99.91 %, rms 0.057 px);
     the intersections stay within 0.3 px at p95 (one of 2466 is 240 px off: a known defect
     of this option, so the intersection RMS is not asserted)."""
     v, pat = teapot
     base = evaluate_detection(teapot_result, v.truth, pat)
     r = detect_grid(v.grid, pat, v.white, dominance=0.5, corner_keep=1.0, refit_residual=0.15)
     ev = evaluate_detection(r, v.truth, pat)
-    assert ev["coverage"] > base["coverage"] + 0.03, (base, ev)
+    assert ev["coverage"] > base["coverage"] + 0.015, (base, ev)
     assert ev["label_rate"] >= 0.995, ev
     assert ev["wrong_lines_over_20px"] == 0, ev
     assert ev["rms_px"] < 0.08, ev
@@ -460,3 +461,67 @@ def test_row_support_interpolates_extrapolates_and_flags_lone_points():
     assert res[0] == pytest.approx(abs(100.0 - (112 - 6 * 20.5 / 10)))
     assert res[3] == pytest.approx(abs(144.0 - (112 + 16 * 20.5 / 10)))
     assert np.isnan(res[4:]).all()
+
+
+def _rows_of_vertical_edges(pattern, bands, rows=10, scale=1.5, x0=50.0):
+    """Edge points of vertical bands ``bands`` (both edges) in ``rows`` pixel rows, seen at
+    camera x = scale * projector x + x0; one line per (band, edge), line id 2 k + edge."""
+    e = pattern.vertical_edges[bands]  # (K, 2)
+    coord = np.tile(e.reshape(-1), rows)
+    x = scale * coord + x0
+    y = np.repeat(np.arange(rows, dtype=np.float64), 2 * len(bands))
+    line = np.tile(np.arange(2 * len(bands)), rows)
+    cls = line % 2  # direction 0 (vertical bands), edge = rising 0 / falling 1
+    o = np.argsort(line, kind="stable")
+    return x[o], y[o], cls[o], line[o]
+
+
+def test_interpolate_labels_between_labelled_neighbours(pattern):
+    """Oracle: the band index of an unlabelled band between labelled ones in every row."""
+    from nurbscan.detect.core import interpolate_labels
+
+    seq = np.asarray(pattern.sequence)
+    bands = np.arange(10, 15)
+    x, y, cls, line = _rows_of_vertical_edges(pattern, bands)
+    label = np.repeat(bands, 2)
+    label[4:6] = -1  # band 12's two edges are not labelled
+    lcode = seq[np.repeat(bands, 2)]
+    kw = dict(span=2.2 * pattern.pitch, tol=0.1 * pattern.pitch)
+    out = interpolate_labels(label, x, y, cls, line, lcode, pattern, **kw)
+    assert out.tolist() == np.repeat(bands, 2).tolist()
+    # the line's own colour must be the band's colour in the pattern (unknown: not enough)
+    wrong = lcode.copy()
+    wrong[4] = (seq[12] + 1) % 5
+    wrong[5] = -1
+    out = interpolate_labels(label, x, y, cls, line, wrong, pattern, **kw)
+    assert out.tolist() == label.tolist()
+    out = interpolate_labels(label, x, y, cls, line, wrong, pattern, require_colour=False,
+                             **kw)
+    assert out[4] == -1 and out[5] == 12
+    # two unlabelled bands side by side: the labelled neighbours are too far apart
+    label2 = label.copy()
+    label2[6:8] = -1
+    assert (interpolate_labels(label2, x, y, cls, line, lcode, pattern, **kw)[4:8] == -1).all()
+    # a spurious edge point in every row between band 11 and band 12: the points between
+    # the labelled neighbours outnumber the pattern's edges, so nothing is labelled
+    xs = np.r_[x, 1.5 * (pattern.vertical_edges[11, 1] + 2.0) + 50.0 + np.zeros(10)]
+    ys = np.r_[y, np.arange(10.0)]
+    cs = np.r_[cls, np.zeros(10, np.int64)]
+    ls = np.r_[line, np.full(10, 10)]
+    lab3 = np.r_[label, -1]
+    out = interpolate_labels(lab3, xs, ys, cs, ls, np.r_[lcode, -1], pattern, **kw)
+    assert (out[4:6] == -1).all() and out[10] == -1
+
+
+def test_propagate_collinear_unknown_colour():
+    """A piece continuing a labelled edge takes its label when its colour agrees, and with
+    ``unknown`` also when its colour is unknown; never when it disagrees."""
+    from nurbscan.detect.core import propagate_collinear
+
+    seq = np.array([0, 1, 2, 3, 4])
+    label = np.array([2, -1, -1, -1])
+    src, dst = np.array([0, 0, 0]), np.array([1, 2, 3])
+    lcode = np.array([2, 2, -1, 3])
+    assert propagate_collinear(label, src, dst, lcode, seq).tolist() == [2, 2, -1, -1]
+    assert propagate_collinear(label, src, dst, lcode, seq, unknown=True).tolist() == \
+        [2, 2, 2, -1]

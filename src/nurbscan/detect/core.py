@@ -357,7 +357,7 @@ def propagate_pairs(label, lr, lf, lcode, seq, min_votes: int = 3,
     return out
 
 
-def propagate_collinear(label, src, dst, lcode, seq) -> np.ndarray:
+def propagate_collinear(label, src, dst, lcode, seq, unknown: bool = False) -> np.ndarray:
     """Give an unlabelled chain the label of the chain it continues (or that continues it).
 
     ``src -> dst`` (J,) are joins of collinear chains of one edge class across a gap
@@ -369,8 +369,105 @@ def propagate_collinear(label, src, dst, lcode, seq) -> np.ndarray:
     for a, b in ((src, dst), (dst, src)):
         m = (out[a] >= 0) & (out[b] < 0)
         a, b = a[m], b[m]
-        ok = lcode[b] == seq[out[a]]
+        ok = (lcode[b] == seq[out[a]]) | (unknown & (lcode[b] < 0))
         out[b[ok]] = out[a[ok]]
+    return out
+
+
+def interpolate_labels(label, x, y, cls, line, lcode, pattern, span: float,
+                       tol: float, min_votes: int = 3, min_agreement: float = 0.9,
+                       require_colour: bool = True) -> np.ndarray:
+    """Label unlabelled lines from the projector coordinates of their labelled neighbours.
+
+    Along a pixel row the vertical-band edges' projector x grows with the camera x, and
+    between two labelled edge points of the row whose coordinates c1 < c2 differ by at most
+    ``span`` projector px (a couple of pitches: no depth step between them) the map is close to
+    linear. Each point of an unlabelled line lying between two such points is given the
+    interpolated coordinate c; the nearest pattern edge of the point's own kind (rising or
+    falling) to c is its vote when it lies within ``tol`` projector px (pattern edges of one
+    kind are a pitch apart) and when the points of the row between the two labelled ones and
+    it are as many as the pattern edges between their coordinates (no edge missed or spurious
+    there). A line takes the band that ``min_votes`` of its votes, a share
+    ``min_agreement`` of them, agree on, and whose colour in the pattern is the line's own
+    colour code ``lcode`` (-1 unknown: accepted unless ``require_colour``). Horizontal-band
+    edges: the same along pixel columns. This is the local camera-to-projector map that
+    Gray-code and phase-unwrapping decoders use for their unwrapping, seeded here by the
+    lines that the colour windows label.
+
+    Parameters
+    ----------
+    label : (L,) int
+        Band index of each line, -1 unlabelled.
+    x, y : (N,) float
+        Edge points, camera px, sorted by line.
+    cls : (N,) int
+        Edge class: direction * 2 + edge (0 rising, 1 falling).
+    line : (N,) int
+        Line of each point.
+    lcode : (L,) int
+        Colour code of each line, -1 unknown.
+    pattern : nurbscan.pattern.Pattern
+    span, tol : float
+        Projector px.
+
+    Returns
+    -------
+    (L,) int
+        The labels, with the newly labelled lines.
+    """
+    nl = len(label)
+    seq = np.asarray(pattern.sequence)
+    vl, vv = [], []
+    for d, name in ((0, "vertical"), (1, "horizontal")):
+        idx = np.nonzero(cls // 2 == d)[0]
+        if len(idx) < 3:
+            continue
+        run = np.round(y[idx] if d == 0 else x[idx]).astype(np.int64)
+        acr = x[idx] if d == 0 else y[idx]
+        o = np.lexsort((acr, run))
+        idx, run, acr = idx[o], run[o], acr[o]
+        lab = label[line[idx]]
+        edge = cls[idx] % 2
+        known = lab >= 0
+        c = np.full(len(idx), np.nan)
+        c[known] = pattern.edge_coordinate(name, lab[known], edge[known])
+        m = len(idx)
+        p = np.arange(m)
+        prv = np.maximum.accumulate(np.where(known, p, -1))
+        nxt = np.minimum.accumulate(np.where(known, p, m)[::-1])[::-1]
+        edges = pattern.vertical_edges if d == 0 else pattern.horizontal_edges
+        flat = np.sort(edges.reshape(-1))
+        ok = ~known & (prv >= 0) & (nxt < m)
+        j1, j2 = np.clip(prv, 0, m - 1), np.clip(nxt, 0, m - 1)
+        ok &= (run[j1] == run) & (run[j2] == run)
+        with np.errstate(all="ignore"):
+            ok &= (c[j2] > c[j1]) & (c[j2] - c[j1] <= span) & (acr[j2] > acr[j1])
+            ci = np.where(ok, c[j1] + (acr - acr[j1]) * (c[j2] - c[j1]) / (acr[j2] - acr[j1]),
+                          np.nan)
+        k = np.nonzero(np.isfinite(ci))[0]
+        if not len(k):
+            continue
+        e = edge[k]
+        b = np.clip(np.round((ci[k] - edges[0, e]) / pattern.pitch).astype(np.int64), 0,
+                    len(edges) - 1)
+        good = np.abs(ci[k] - edges[b, e]) <= tol
+        # every edge point of the row between the two labelled ones is one pattern edge: as
+        # many points lie between them and this point as pattern edges (no edge missed or
+        # spurious on either side)
+        eidx = np.searchsorted(flat, edges[b, e])
+        good &= (eidx - np.searchsorted(flat, c[j1[k]])) == (k - j1[k])
+        good &= (np.searchsorted(flat, c[j2[k]]) - eidx) == (j2[k] - k)
+        vl.append(line[idx[k[good]]])
+        vv.append(b[good])
+    if not vl:
+        return label
+    new, _, _ = line_labels(np.concatenate(vl), None, np.concatenate(vv), nl,
+                            min_votes=min_votes, min_agreement=min_agreement, direct=True)
+    cand = np.nonzero((new >= 0) & (label < 0))[0]
+    col = lcode[cand]
+    ok = (col == seq[new[cand]]) | ((col < 0) & (not require_colour))
+    out = label.copy()
+    out[cand[ok]] = new[cand[ok]]
     return out
 
 
@@ -509,7 +606,10 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                 corner_keep: float = 0.0, min_width: float = 3.5,
                 keep_partner: bool = True, min_checked_length: int = 0,
                 min_row_support: float = 0.1, max_row_residual: float = 1.0,
-                keep_unsupported: bool = False) -> DetectionResult:
+                keep_unsupported: bool = False, interpolation_rounds: int = 3,
+                interpolation_span: float = 2.2, interpolation_tol: float = 0.1,
+                require_colour: bool = True, collinear_rounds: int = 5,
+                collinear_unknown: bool = True) -> DetectionResult:
     """Find, trace and decode the grid's edge lines in one photograph.
 
     Parameters
@@ -592,9 +692,10 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         labelling).
     min_width : float
         (This and ``keep_unpaired``, ``keep_partner``, ``min_row_support``,
-        ``max_row_residual``, ``keep_unsupported`` apply where the bands are resolved, at
-        least ``FINE_BAND_PX`` = 4 px wide; narrower bands use the plain rules: no
-        unpaired points, no width, partner or row checks.)
+        ``max_row_residual``, ``keep_unsupported``, ``interpolation_rounds`` and
+        ``collinear_rounds`` apply where the bands are resolved, at least ``FINE_BAND_PX`` =
+        4 px wide; narrower bands use the plain rules: no unpaired points, no width, partner
+        or row checks, no labels by interpolation or unknown colours.)
         Keep the points of band crossings at least this many ``sigma`` wide only: the edges
         of narrower (squeezed) bands are biased outwards (7.1 MP teapot, sigma 1.46 px: RMS
         0.16 px for bands 4-5 px wide, 0.085 px at 5-6 px, 0.05 px above 6 px); 0 keeps all.
@@ -614,6 +715,25 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     keep_unsupported : bool
         Keep points with no labelled neighbours within two pitches in their row or column
         (:func:`row_support`; 7.1 MP teapot: 2.6 % of the points, RMS 0.14-0.17 px).
+    interpolation_rounds : int
+        Rounds of :func:`interpolate_labels` (unlabelled lines between labelled neighbours of
+        their rows or columns take the band the interpolated projector coordinate points to),
+        after the propagation and its checks; 0 disables. 7.1 MP teapot views 0-7, with the
+        collinear propagation below: coverage 0.609 -> 0.629, labels still 99.999 % right
+        with no wrong line over 20 px, RMS 0.048 -> 0.049 px. (Extrapolating beyond the last
+        labelled edge of a row gained 1 point more but labelled 4 lines over 20 px wrongly.)
+    interpolation_span, interpolation_tol : float
+        Largest coordinate difference of the two labelled neighbours, and largest distance of
+        the interpolated coordinate from the pattern edge, both in pattern pitches.
+    require_colour : bool
+        An interpolated label needs the line's own colour to be the band's (an unknown colour
+        does not confirm it).
+    collinear_rounds : int
+        Further rounds of :func:`propagate_collinear` alone (labels carried along the pieces of
+        one edge cut by crossing bands) after the propagation above.
+    collinear_unknown : bool
+        In those rounds, a piece of unknown colour also takes the label of the piece it
+        continues (a contradicting colour still stops it).
 
     Returns
     -------
@@ -662,6 +782,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     if not fine:
         keep_unpaired, min_width, keep_partner = False, 0.0, False
         min_row_support, max_row_residual, keep_unsupported = 0.0, 0.0, True
+        interpolation_rounds, collinear_rounds = 0, 0
     pts = detect_edge_points(sig, sigma=sigma, threshold=threshold, valid=nrm.valid,
                              sigma_along=sigma_along, dominance=dominance)
     # a dark gap: well below the dimmest single-primary band (sum of channels ~1 in a band)
@@ -767,10 +888,26 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         label = propagate_collinear(label, jsrc, jdst, lcode_all, seq)
         if int(np.sum(label >= 0)) == before:
             break
+    for _ in range(collinear_rounds):
+        before = int(np.sum(label >= 0))
+        label = propagate_collinear(label, jsrc, jdst, lcode_all, seq, unknown=collinear_unknown)
+        if int(np.sum(label >= 0)) == before:
+            break
     for lr, lf, st, rw, ra, fa, _, _ in props:
         label = check_adjacency(label, lr, lf, st, rw, ra, fa, pattern.pitch / pattern.band)
     if line_width_tol > 0:
         label = check_band_width(label, props, ratio, line_width_tol)
+    for _ in range(interpolation_rounds):
+        before = int(np.sum(label >= 0))
+        label = interpolate_labels(label, px, py, cls, line, lcode_all, pattern,
+                                   span=interpolation_span * pattern.pitch,
+                                   tol=interpolation_tol * pattern.pitch,
+                                   min_votes=min_votes, require_colour=require_colour)
+        if int(np.sum(label >= 0)) == before:
+            break
+    if interpolation_rounds:
+        for lr, lf, st, rw, ra, fa, _, _ in props:
+            label = check_adjacency(label, lr, lf, st, rw, ra, fa, pattern.pitch / pattern.band)
     ldir = np.zeros(nlines, np.int64)
     if len(line):
         ldir[line] = cls // 2
