@@ -525,3 +525,37 @@ def test_propagate_collinear_unknown_colour():
     assert propagate_collinear(label, src, dst, lcode, seq).tolist() == [2, 2, -1, -1]
     assert propagate_collinear(label, src, dst, lcode, seq, unknown=True).tolist() == \
         [2, 2, 2, -1]
+
+
+def test_chain_end_residual_flags_disturbed_ends():
+    """A chain's end point is measured against the straight line through its next points, across
+    the edge; interior points and short chains get 0."""
+    from nurbscan.detect.core import chain_end_residual
+
+    t = np.arange(10.0)
+    # chain 0: a vertical-band edge x = 5 + 0.2 y whose last point is 0.3 px off (in x);
+    # chain 1: a horizontal-band edge y = 7 - 0.1 x whose first point is 0.05 px off (in y);
+    # chain 2: three points, too short to judge
+    x = np.r_[5 + 0.2 * t, t, 0.0, 1.0, 2.0]
+    y = np.r_[t, 7 - 0.1 * t, 3.0, 3.5, 9.0]
+    x[9] += 0.3
+    y[10] += 0.05
+    line = np.repeat([0, 1, 2], [10, 10, 3])
+    direction = np.repeat([0, 1, 1], [10, 10, 3])
+    r = chain_end_residual(x, y, direction, line)
+    assert r[9] == pytest.approx(0.3, abs=1e-9)
+    assert r[10] == pytest.approx(0.05, abs=1e-9)
+    assert r[0] == pytest.approx(0.0, abs=1e-9) and r[19] == pytest.approx(0.0, abs=1e-9)
+    assert np.all(r[1:9] == 0) and np.all(r[11:19] == 0) and np.all(r[20:] == 0)
+
+
+def test_end_residual_lowers_teapot_rms(teapot, teapot_result):
+    """Dropping chain ends off their chain's line (``end_residual``, default 0.15 px) lowers the
+    RMS for a small loss of coverage (measured at 1280 x 960: rms 0.0587 -> 0.0574 px,
+    coverage 0.509 -> 0.504, intersections rms 0.086 -> 0.079 px)."""
+    v, pat = teapot
+    ev = evaluate_detection(teapot_result, v.truth, pat)
+    off = evaluate_detection(detect_grid(v.grid, pat, v.white, end_residual=0), v.truth, pat)
+    assert ev["rms_px"] < off["rms_px"] - 0.0008, (off, ev)
+    assert ev["coverage"] > off["coverage"] - 0.01, (off, ev)
+    assert ev["label_rate"] >= 0.995 and ev["wrong_lines_over_20px"] == 0, ev

@@ -471,6 +471,33 @@ def interpolate_labels(label, x, y, cls, line, lcode, pattern, span: float,
     return out
 
 
+def chain_end_residual(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.ndarray,
+                       reach: int = 6) -> np.ndarray:
+    """Distance (camera px) of each chain's first and last point from its chain's straight line.
+
+    The line is fitted by least squares to the ``reach`` chain points next to the end point
+    (:func:`~nurbscan.detect.lines.neighbour_fit`, one-sided), across the edge (x for
+    vertical-band edges, ``direction`` 0; y for horizontal ones) against along it; the
+    distance is measured across the edge. Interior points, and ends of chains of fewer than
+    four points, get 0. Arrays (M,) grouped by chain, ``line`` non-decreasing.
+    """
+    n = len(x)
+    out = np.zeros(n)
+    if n == 0:
+        return out
+    vert = direction == 0
+    along = np.where(vert, y, x)
+    across = np.where(vert, x, y)
+    counts = np.bincount(line)
+    stop = np.cumsum(counts)
+    first = stop - counts
+    ends = np.unique(np.r_[first[counts > 0], stop[counts > 0] - 1])
+    c0, ok = neighbour_fit(along, across, line, np.ones(n, bool), reach=reach,
+                           both_sides=False)
+    out[ends] = np.where(ok[ends], np.abs(across[ends] - c0[ends]), 0.0)
+    return out
+
+
 def check_band_width(label, props, ratio: float, tol: float, min_count: int = 3) -> np.ndarray:
     """Unlabel lines whose bands are consistently too narrow or too wide: occluding contours.
 
@@ -600,7 +627,8 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                 crossing_margin: float = 0.0, max_residual: float = 0.3,
                 window: int = 31, propagation_rounds: int = 1,
                 join_gap: float | None = None, refine: bool = True,
-                refit_residual: float = 0.2, unrefined: str = "keep",
+                refit_residual: float = 0.2, end_residual: float = 0.15,
+                unrefined: str = "keep",
                 width_tol: float = 0.35, line_width_tol: float = 0.2,
                 keep_unpaired: bool = True, dominance: float = 1.0,
                 corner_keep: float = 0.0, min_width: float = 3.5,
@@ -661,6 +689,15 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     refit_residual : float
         After refinement, drop points farther than this (px) from the straight line through
         their chain neighbours; 0 keeps them.
+    end_residual : float
+        Drop the first and the last point of every chain when farther than this (camera px)
+        from the straight line through the chain's next points (:func:`chain_end_residual`);
+        0 keeps them. A chain ends where a crossing band's corner, an occluding contour or a
+        gap disturbs the profile on one side only, so its ends are the least exact points: on
+        the 7.1 MP teapot view 0 at 1x noise, 0.1 % of the points (errors over 0.46 px) carry
+        13 % of the squared error, and half of the points over 0.27 px are chain ends. Views
+        0-7 at 1x noise: mean RMS 0.0494 -> 0.0460 px, coverage 0.629 -> 0.625 (0.1 px:
+        0.0454 px, 0.624).
     unrefined : {"keep", "fit", "drop"}
         Points that the refinement could not re-measure: "keep" them (moved onto their
         re-measured neighbours' line where there are such neighbours), keep only those so
@@ -982,6 +1019,9 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
             pk = partner[kidx]
             kp &= (pk < 0) | kept[np.maximum(pk, 0)]
         px, py, line, strength = px[kp], py[kp], line[kp], strength[kp]
+    if end_residual > 0 and len(px):
+        ke = chain_end_residual(px, py, ldir[line], line) <= end_residual
+        px, py, line, strength = px[ke], py[ke], line[ke], strength[ke]
     nl = len(lab)
     counts = np.bincount(line, minlength=nl)
     stop = np.cumsum(counts)
