@@ -113,6 +113,7 @@ def run_bundle(
     fix_sx_proj: bool = False,
     proj_weight: float = 1.0,
     max_nfev: int = 200,
+    corner_weight: np.ndarray | None = None,
 ) -> BundleState:
     """Minimise the camera (and projector) reprojection residuals over all unknowns.
 
@@ -132,6 +133,9 @@ def run_bundle(
         Weight of the projector residuals relative to the camera's.
     max_nfev : int
         Iteration cap (function evaluations) of the solver.
+    corner_weight : ndarray, shape (P,), optional
+        Weight of each view's corner residuals (default 1 for all), e.g. the inverse of the
+        view's corner error scale relative to the others' (inverse-variance weighting).
 
     Returns
     -------
@@ -170,9 +174,14 @@ def run_bundle(
     M = len(corners.view)
     K = 0 if not use_p else len(proj.view)
 
+    cw = None if corner_weight is None else np.repeat(
+        np.asarray(corner_weight, float)[corners.view], 2)
+
     def fun(x):
         kc, kp, rp, tp, sh, rv, tv = unpack(x)
         r = camera_residuals(kc, rv, tv, corners, *dc).ravel()
+        if cw is not None:
+            r = r * cw
         if use_p:
             rpj = projector_residuals(kc, rv, tv, kp, rp, tp, proj, dc, dp, sh) * proj_weight
             r = np.concatenate([r, rpj])
