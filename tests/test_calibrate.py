@@ -158,6 +158,16 @@ def test_plane_homography_from_single_coordinates():
         plane_homography(xy, uv[:, 0], np.zeros(300, int))
 
 
+def test_corner_weights_downweight_views_worse_than_the_median():
+    """Views with corner RMS above the median get median / rms (inverse-variance weighting),
+    the others 1; a zero RMS is not a division by zero."""
+    from nurbscan.calibrate.pipeline import corner_weights
+
+    w = corner_weights(np.array([0.04, 0.05, 0.05, 0.10, 0.20, 0.0]))
+    # median of the six: 0.05
+    np.testing.assert_allclose(w, [1.0, 1.0, 1.0, 0.5, 0.25, 1.0], rtol=1e-12)
+
+
 def test_turntable_axis_point_and_sense():
     rng = np.random.default_rng(6)
     a = np.array([0.0, -np.cos(0.35), -np.sin(0.35)])
