@@ -273,6 +273,25 @@ def grid_consistency(cam: np.ndarray, proj: np.ndarray, tol: float, k: int = 8) 
     return np.hypot(*(pred - proj).T) < tol
 
 
+def _assign_votes(label, vote_line, vote_band, lcode, seq, min_votes: int,
+                  min_agreement: float, accept_unknown: bool = False) -> np.ndarray:
+    """Labels (L,) with the unlabelled lines that their votes label with confidence.
+
+    A line takes the band that ``min_votes`` of its votes (``vote_line``, ``vote_band``), a
+    share ``min_agreement`` of them, agree on (:func:`~nurbscan.detect.decode.line_labels`)
+    when its colour code ``lcode`` (-1 unknown) is the pattern's colour of that band in
+    ``seq`` (or is unknown and ``accept_unknown``). Lines already labelled are kept.
+    """
+    new, _, _ = line_labels(vote_line, None, vote_band, len(label), min_votes=min_votes,
+                            min_agreement=min_agreement, direct=True)
+    cand = np.nonzero((new >= 0) & (label < 0))[0]
+    col = lcode[cand]
+    ok = (col == seq[new[cand]]) | (accept_unknown & (col < 0))
+    out = label.copy()
+    out[cand[ok]] = new[cand[ok]]
+    return out
+
+
 def propagate_labels(label, lr, lf, st, rw, ra, fa, lcode, seq, nbands: int, ratio: float,
                      rounds: int = 4, min_votes: int = 3, min_agreement: float = 0.9):
     """Extend the labelling to unlabelled lines from their labelled neighbours.
@@ -321,14 +340,10 @@ def propagate_labels(label, lr, lf, st, rw, ra, fa, lcode, seq, nbands: int, rat
         vl, vv = vl[free], vv[free]
         if not len(vl):
             break
-        new, _, _ = line_labels(vl, None, vv, len(label), min_votes=min_votes,
-                                min_agreement=min_agreement, direct=True)
-        cand = np.nonzero(new >= 0)[0]
-        col = lcode[cand]
-        ok = col == seq[new[cand]]
-        if not np.any(ok):
+        out = _assign_votes(label, vl, vv, lcode, seq, min_votes, min_agreement)
+        if np.array_equal(out, label):
             break
-        label[cand[ok]] = new[cand[ok]]
+        label = out
     return label
 
 
@@ -348,13 +363,7 @@ def propagate_pairs(label, lr, lf, lcode, seq, min_votes: int = 3,
     ok = (src >= 0) & (label[dst] < 0)
     if not np.any(ok):
         return label
-    new, _, _ = line_labels(dst[ok], None, src[ok], len(label), min_votes=min_votes,
-                            min_agreement=min_agreement, direct=True)
-    cand = np.nonzero(new >= 0)[0]
-    ok = lcode[cand] == seq[new[cand]]
-    out = label.copy()
-    out[cand[ok]] = new[cand[ok]]
-    return out
+    return _assign_votes(label, dst[ok], src[ok], lcode, seq, min_votes, min_agreement)
 
 
 def propagate_collinear(label, src, dst, lcode, seq, unknown: bool = False) -> np.ndarray:
@@ -374,9 +383,29 @@ def propagate_collinear(label, src, dst, lcode, seq, unknown: bool = False) -> n
     return out
 
 
+def row_order(x, y, cls) -> list:
+    """Edge points in row order, per direction: ``(d, idx, run, across)`` for ``d`` 0 (vertical-
+    band edges, by pixel row, then x) and 1 (horizontal-band edges, by pixel column, then y).
+
+    ``idx`` indexes ``x``, ``y``, ``cls`` (N,); ``run`` is the rounded row (column), ``across``
+    the coordinate along it. Directions with fewer than 3 points are left out. It does not
+    depend on the labels, so rounds of :func:`interpolate_labels` share it.
+    """
+    out = []
+    for d in (0, 1):
+        idx = np.nonzero(cls // 2 == d)[0]
+        if len(idx) < 3:
+            continue
+        run = np.round(y[idx] if d == 0 else x[idx]).astype(np.int64)
+        acr = x[idx] if d == 0 else y[idx]
+        o = np.lexsort((acr, run))
+        out.append((d, idx[o], run[o], acr[o]))
+    return out
+
+
 def interpolate_labels(label, x, y, cls, line, lcode, pattern, span: float,
                        tol: float, min_votes: int = 3, min_agreement: float = 0.9,
-                       require_colour: bool = True) -> np.ndarray:
+                       require_colour: bool = True, rows: list | None = None) -> np.ndarray:
     """Label unlabelled lines from the projector coordinates of their labelled neighbours.
 
     Along a pixel row the vertical-band edges' projector x grows with the camera x, and
@@ -409,23 +438,18 @@ def interpolate_labels(label, x, y, cls, line, lcode, pattern, span: float,
     pattern : nurbscan.pattern.Pattern
     span, tol : float
         Projector px.
+    rows : list, optional
+        :func:`row_order` of the points (computed when not given).
 
     Returns
     -------
     (L,) int
         The labels, with the newly labelled lines.
     """
-    nl = len(label)
     seq = np.asarray(pattern.sequence)
     vl, vv = [], []
-    for d, name in ((0, "vertical"), (1, "horizontal")):
-        idx = np.nonzero(cls // 2 == d)[0]
-        if len(idx) < 3:
-            continue
-        run = np.round(y[idx] if d == 0 else x[idx]).astype(np.int64)
-        acr = x[idx] if d == 0 else y[idx]
-        o = np.lexsort((acr, run))
-        idx, run, acr = idx[o], run[o], acr[o]
+    for d, idx, run, acr in (row_order(x, y, cls) if rows is None else rows):
+        name = ("vertical", "horizontal")[d]
         lab = label[line[idx]]
         edge = cls[idx] % 2
         known = lab >= 0
@@ -461,14 +485,8 @@ def interpolate_labels(label, x, y, cls, line, lcode, pattern, span: float,
         vv.append(b[good])
     if not vl:
         return label
-    new, _, _ = line_labels(np.concatenate(vl), None, np.concatenate(vv), nl,
-                            min_votes=min_votes, min_agreement=min_agreement, direct=True)
-    cand = np.nonzero((new >= 0) & (label < 0))[0]
-    col = lcode[cand]
-    ok = (col == seq[new[cand]]) | ((col < 0) & (not require_colour))
-    out = label.copy()
-    out[cand[ok]] = new[cand[ok]]
-    return out
+    return _assign_votes(label, np.concatenate(vl), np.concatenate(vv), lcode, seq, min_votes,
+                         min_agreement, accept_unknown=not require_colour)
 
 
 def chain_end_residual(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.ndarray,
@@ -496,6 +514,17 @@ def chain_end_residual(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line
                            both_sides=False)
     out[ends] = np.where(ok[ends], np.abs(across[ends] - c0[ends]), 0.0)
     return out
+
+
+def _until_stable(step, label: np.ndarray, rounds: int) -> np.ndarray:
+    """Apply ``step`` (labels -> labels) up to ``rounds`` times, stopping once a round labels
+    no further line."""
+    for _ in range(rounds):
+        before = int(np.sum(label >= 0))
+        label = step(label)
+        if int(np.sum(label >= 0)) == before:
+            break
+    return label
 
 
 def check_band_width(label, props, ratio: float, tol: float, min_count: int = 3) -> np.ndarray:
@@ -915,36 +944,36 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                        "colour windows agree with their neighbours)")
     seq = np.asarray(pattern.sequence)
     lcode_all = np.max(np.stack([q[6] for q in props]), axis=0)
-    for _ in range(propagation_rounds):
-        before = int(np.sum(label >= 0))
+    def propagate(label):
         for lr, lf, st, rw, ra, fa, lcode, name in props:
             label = propagate_labels(label, lr, lf, st, rw, ra, fa, lcode, seq,
                                      pattern.nbands(name), pattern.pitch / pattern.band)
             label = propagate_pairs(label, lr, lf, lcode, seq, min_votes=min_votes,
                                     min_agreement=min_agreement)
-        label = propagate_collinear(label, jsrc, jdst, lcode_all, seq)
-        if int(np.sum(label >= 0)) == before:
-            break
-    for _ in range(collinear_rounds):
-        before = int(np.sum(label >= 0))
-        label = propagate_collinear(label, jsrc, jdst, lcode_all, seq, unknown=collinear_unknown)
-        if int(np.sum(label >= 0)) == before:
-            break
-    for lr, lf, st, rw, ra, fa, _, _ in props:
-        label = check_adjacency(label, lr, lf, st, rw, ra, fa, pattern.pitch / pattern.band)
-    if line_width_tol > 0:
-        label = check_band_width(label, props, ratio, line_width_tol)
-    for _ in range(interpolation_rounds):
-        before = int(np.sum(label >= 0))
-        label = interpolate_labels(label, px, py, cls, line, lcode_all, pattern,
-                                   span=interpolation_span * pattern.pitch,
-                                   tol=interpolation_tol * pattern.pitch,
-                                   min_votes=min_votes, require_colour=require_colour)
-        if int(np.sum(label >= 0)) == before:
-            break
-    if interpolation_rounds:
+        return propagate_collinear(label, jsrc, jdst, lcode_all, seq)
+
+    def check_all_adjacency(label):
         for lr, lf, st, rw, ra, fa, _, _ in props:
             label = check_adjacency(label, lr, lf, st, rw, ra, fa, pattern.pitch / pattern.band)
+        return label
+
+    label = _until_stable(propagate, label, propagation_rounds)
+    label = _until_stable(lambda lab: propagate_collinear(lab, jsrc, jdst, lcode_all, seq,
+                                                          unknown=collinear_unknown),
+                          label, collinear_rounds)
+    label = check_all_adjacency(label)
+    if line_width_tol > 0:
+        label = check_band_width(label, props, ratio, line_width_tol)
+    if interpolation_rounds:
+        rows = row_order(px, py, cls)
+        label = _until_stable(
+            lambda lab: interpolate_labels(lab, px, py, cls, line, lcode_all, pattern,
+                                           span=interpolation_span * pattern.pitch,
+                                           tol=interpolation_tol * pattern.pitch,
+                                           min_votes=min_votes,
+                                           require_colour=require_colour, rows=rows),
+            label, interpolation_rounds)
+        label = check_all_adjacency(label)
     ldir = np.zeros(nlines, np.int64)
     if len(line):
         ldir[line] = cls // 2
