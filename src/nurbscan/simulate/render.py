@@ -44,7 +44,9 @@ stored as truth). For one view at table angle theta:
      the projector image's border, the camera image's border): ``samples`` x ``samples``
      rays on a regular sub-pixel grid are traced exactly, each with its own hit, shadow test,
      shading and pattern (its cell's trapezoid mean, J from the neighbouring sub-samples, or a
-     point sample next to a jump); misses count as black; the pixel is their mean.
+     point sample next to a jump); misses count as black; the pixel is their mean. A texture
+     given with its cell mean (``albedo_cell``, the chessboard target's) is averaged over
+     each sub-sample's cell the same way, so printed edges do not snap to the sub-samples.
 
 6. **Shading.** Irradiance from the projector E = power (d_ref / d)^2 max(n.l, 0) (inverse
    square fall-off from the projector's centre, Lambert's cosine); radiance
@@ -247,6 +249,30 @@ class RenderSettings:
 
 
 # ---------------------------------------------------------------------------- pattern profile
+def step_coverage(t: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Share of the footprint t + A + B above 0, A ~ U[-a/2, a/2], B ~ U[-b/2, b/2].
+
+    This is the mean of the unit step over a cell whose coordinate is the linear map
+    t + a' x + b' y (|a'| = a, |b'| = b, x and y uniform over the cell): the cumulative
+    distribution of the trapezoid (the convolution of two boxes, as in
+    :meth:`BandProfile.trapezoid`) at t, F(t) = [R(t + p) - R(t + q) - R(t - q) + R(t - p)]
+    / (a b) with R(t) = max(t, 0)^2 / 2, p = (a + b) / 2, q = (a - b) / 2; a box
+    (b -> 0) or a point sample (a, b -> 0) in the limits. All arrays broadcast; same units.
+    """
+    t, a, b = np.broadcast_arrays(*(np.asarray(x, float) for x in (t, a, b)))
+    big, small = np.maximum(a, b), np.minimum(a, b)
+    p, q = 0.5 * (big + small), 0.5 * (big - small)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = [np.square(np.maximum(t + c, 0.0)) for c in (p, q, -q, -p)]
+        trap = 0.5 * (r[0] - r[1] - r[2] + r[3]) / (big * small)
+        box = np.clip(t / big + 0.5, 0.0, 1.0)
+    point = (t > 0) + 0.5 * (t == 0)
+    out = np.clip(np.where(t >= p, 1.0, np.where(t <= -p, 0.0,
+                                                 np.where(small > 1e-9 * big, trap, box))),
+                  0.0, 1.0)
+    return np.where(big > 0, out, point)
+
+
 class BandProfile:
     """The blurred 1-D light profile of one band direction and its exact pixel averages.
 
@@ -423,6 +449,7 @@ class _Context:
     cam_centre: np.ndarray
     proj_centre: np.ndarray
     albedo_fn: Callable[[np.ndarray], np.ndarray] | None
+    albedo_cell: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None
 
 
 def _mm(a: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -451,7 +478,8 @@ def _trace(ctx: _Context, pix: np.ndarray,
 
     Returns per ray: ``valid`` (hit anything), ``sid``, ``x_obj``, ``x_rig``, ``proj`` (N, 2),
     ``lit``, ``depth``, and the shading factors ``gain`` and ``amb`` (N, 3) of the radiance
-    L_j = gain_j P_j + amb_j (module notes, step 6), and ``albedo`` (N, 3). With ``out``
+    L_j = gain_j P_j + amb_j (module notes, step 6), ``albedo`` (N, 3) and, without ``out``,
+    the irradiance ``irr`` (N,), so that gain = (albedo + gloss term) irr. With ``out``
     (arrays of those names and shapes, filled with the no-hit defaults: NaN, 0, False,
     ``BACKGROUND_ID``) the results are written there instead (no temporary arrays).
     """
@@ -471,7 +499,8 @@ def _trace(ctx: _Context, pix: np.ndarray,
                "x_obj": np.full((n, 3), np.nan), "x_rig": np.full((n, 3), np.nan),
                "proj": np.full((n, 2), np.nan), "lit": np.zeros(n, bool),
                "depth": np.full(n, np.nan), "gain": np.zeros((n, 3), np.float32),
-               "amb": np.zeros((n, 3), np.float32), "albedo": np.zeros((n, 3), np.float32)}
+               "amb": np.zeros((n, 3), np.float32), "albedo": np.zeros((n, 3), np.float32),
+               "irr": np.zeros(n, np.float32)}
     else:  # the caller's arrays, holding the defaults above; ``valid`` is copied at the end
         out = dict(out)
         out["valid_view"], out["valid"] = out["valid"], valid
@@ -542,6 +571,8 @@ def _trace(ctx: _Context, pix: np.ndarray,
     out["gain"][idx] = (alb + spec[:, None]) * irr[:, None]
     out["amb"][idx] = alb * s.ambient
     out["albedo"][idx] = alb
+    if "irr" in out:
+        out["irr"][idx] = irr
     return _done(out, valid)
 
 
@@ -742,7 +773,9 @@ def _neighbour_ok(valid, sid, lit, u, v, alb, jump) -> tuple[np.ndarray, np.ndar
 def render_view(scene, rig, pattern, angle: float = 0.0, settings: RenderSettings | None = None,
                 seed: int = 0, stream: int = 0,
                 albedo: Callable[[np.ndarray], np.ndarray] | None = None,
-                workers: int | None = None) -> RenderedView:
+                workers: int | None = None,
+                albedo_cell: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+                | None = None) -> RenderedView:
     """Render the grid image, the white image and the truth of one view (module notes).
 
     Parameters
@@ -762,6 +795,13 @@ def render_view(scene, rig, pattern, angle: float = 0.0, settings: RenderSetting
         constant ``settings.albedo``.
     workers : int, optional
         Threads (default: the number of CPUs). The result does not depend on it.
+    albedo_cell : callable, optional
+        ``albedo_cell(points_obj, dx, dy) -> (N, 3)``, the texture's mean over the
+        parallelogram cells ``points + dx s + dy t`` (s, t in [-1/2, 1/2]; object frame, mm).
+        With it the traced sub-samples of texture edges integrate the texture over their
+        cells (sides from the neighbouring sub-samples on the same surface) instead of
+        point-sampling it, so that a printed edge moves continuously with the surface
+        (module notes, step 5).
     """
     s = settings or RenderSettings()
     cam = rig.camera
@@ -773,7 +813,8 @@ def render_view(scene, rig, pattern, angle: float = 0.0, settings: RenderSetting
     light = pattern_light(pattern, float(s.projector_blur))
     ctx = _Context(scene=scene, rig=rig, settings=s, light=light, m=m, t=t,
                    cam_centre=np.asarray(cam.center, float),
-                   proj_centre=np.asarray(rig.projector.center, float), albedo_fn=albedo)
+                   proj_centre=np.asarray(rig.projector.center, float), albedo_fn=albedo,
+                   albedo_cell=albedo_cell)
     W, H = int(cam.width), int(cam.height)
     npx = W * H
     n_workers = max(1, int(workers or os.cpu_count() or 1))
@@ -865,6 +906,8 @@ def render_view(scene, rig, pattern, angle: float = 0.0, settings: RenderSetting
         base = np.stack([k % W, k // W], axis=1).astype(float)
         pix = (base[:, None, :] + offs[None, :, :]).reshape(-1, 2)
         r = _trace(ctx, pix)
+        if ctx.albedo_cell is not None:
+            _integrate_texture(ctx, r, s.samples)
         p = np.zeros((pix.shape[0], 3), np.float32)
         lt = r["lit"]
         if lt.any():
@@ -930,6 +973,48 @@ def _subcell_jacobian(proj: np.ndarray, samples: int) -> tuple[np.ndarray, np.nd
     gx = np.where(np.isfinite(gx) & (gx < 4.0), gx, 0.0)
     gy = np.where(np.isfinite(gy) & (gy < 4.0), gy, 0.0)
     return np.stack([gx[:, 0], gy[:, 0]], axis=1), np.stack([gx[:, 1], gy[:, 1]], axis=1)
+
+
+def _subcell_steps(q: np.ndarray, ok: np.ndarray, sid: np.ndarray, axis: int) -> np.ndarray:
+    """Step of ``q`` (N, S, S, 3) between neighbouring sub-samples along ``axis`` (1 or 2).
+
+    Per sub-sample, the mean of its differences to the neighbours on the same surface (same
+    ``sid``, both ``ok``): central inside a surface, one-sided at its border, 0 where it has
+    none. Shape (N * S * S, 3).
+    """
+    d = np.diff(q, axis=axis)
+    a = [slice(None)] * 3
+    b = [slice(None)] * 3
+    a[axis], b[axis] = slice(None, -1), slice(1, None)
+    same = ok[tuple(a)] & ok[tuple(b)] & (sid[tuple(a)] == sid[tuple(b)])
+    d = np.where(same[..., None], d, 0.0)
+    pad_lo, pad_hi = [(0, 0)] * 4, [(0, 0)] * 4
+    pad_lo[axis], pad_hi[axis] = (1, 0), (0, 1)
+    total = np.pad(d, pad_lo) + np.pad(d, pad_hi)
+    count = np.pad(same, pad_lo[:3]).astype(float) + np.pad(same, pad_hi[:3])
+    return (total / np.maximum(count, 1.0)[..., None]).reshape(-1, 3)
+
+
+def _integrate_texture(ctx: _Context, r: dict[str, np.ndarray], samples: int) -> None:
+    """Replace the point-sampled albedo of traced sub-samples by its mean over their cells.
+
+    Each sub-sample's cell sides are the steps to its neighbouring sub-samples on the same
+    surface (:func:`_subcell_steps`); ``ctx.albedo_cell`` averages the texture over the cell,
+    and ``gain`` and ``amb`` of ``r`` (from :func:`_trace`) are rescaled to it in place.
+    """
+    obj = np.flatnonzero(r["sid"] >= 0)
+    if obj.size == 0 or samples < 2:
+        return
+    q = r["x_obj"].reshape(-1, samples, samples, 3)
+    sid = r["sid"].reshape(q.shape[:3])
+    ok = np.isfinite(q).all(axis=-1)
+    dx = _subcell_steps(q, ok, sid, 2)[obj]
+    dy = _subcell_steps(q, ok, sid, 1)[obj]
+    alb = np.asarray(ctx.albedo_cell(r["x_obj"][obj], dx, dy), np.float32).reshape(-1, 3)
+    change = alb - r["albedo"][obj]
+    r["gain"][obj] += change * r["irr"][obj, None]
+    r["amb"][obj] += change * np.float32(ctx.settings.ambient)
+    r["albedo"][obj] = alb
 
 
 def _warm_up(scene) -> None:

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import NurbscanError
+from .render import step_coverage
 
 TYPE = "nurbscan.chessboard"
 VERSION = 1
@@ -76,6 +77,33 @@ class Chessboard:
         inside_sq = (ix >= -1) & (ix <= self.cols - 1) & (iy >= -1) & (iy <= self.rows - 1)
         black = inside_sq & ((ix + iy) % 2 == 0)
         return np.where(black, self.black, self.white)
+
+    def albedo_cell(self, p: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
+        """Mean albedo (N,) over the parallelograms p + dx s + dy t, s, t uniform in [-1/2, 1/2].
+
+        ``p``, ``dx``, ``dy`` (N, 2 or 3) are board points and the cell's side vectors, mm
+        (a pixel's or a sub-pixel cell's footprint on the board). The black squares are
+        B(x, y) = [g(x) g(y) + g_s(x) g_s(y)] / 2, with g the indicator of the squared
+        area along one axis and g_s = g times the square wave (+1 on even squares, -1 on odd
+        ones); each one-axis factor is averaged *exactly* over the footprint's projection on
+        its axis (a trapezoid, :func:`~nurbscan.simulate.render.step_coverage`) and the mean
+        of each product is taken as the product of the means. That is exact wherever one
+        factor is constant over the cell (along every edge away from the corners) and for
+        cells whose sides run along the board axes; so a printed edge moves continuously
+        with the board, unlike a point-sampled texture (which snaps to the sub-samples).
+        """
+        s = self.square
+        means = []
+        for axis, n in ((0, self.cols), (1, self.rows)):
+            breaks = np.arange(-1, n + 1) * s  # square boundaries along this axis
+            f = step_coverage(p[:, axis, None] - breaks, np.abs(dx[:, axis, None]),
+                              np.abs(dy[:, axis, None]))
+            cover = f[:, :-1] - f[:, 1:]  # share of the footprint in each square
+            sign = np.where(np.arange(-1, n) % 2 == 0, 1.0, -1.0)
+            means.append((cover.sum(axis=1), cover @ sign))
+        (gx, gsx), (gy, gsy) = means
+        black = 0.5 * (gx * gy + gsx * gsy)
+        return self.white + (self.black - self.white) * black
 
     def to_dict(self) -> dict[str, Any]:
         """The target description stored in ``scan.json`` (docs/scan-format.md)."""
@@ -151,6 +179,13 @@ class BoardScene:
     def albedo(self, points: np.ndarray) -> np.ndarray:
         """Chessboard albedo (N, 3) at object-frame points (N, 3) on the board."""
         a = self.board.albedo_at(self.to_board(points))
+        return np.repeat(a[:, None], 3, axis=1)
+
+    def albedo_cell(self, points: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
+        """Mean chessboard albedo (N, 3) over cells at object-frame points (N, 3) with
+        object-frame side vectors ``dx``, ``dy`` (N, 3) mm (:meth:`Chessboard.albedo_cell`)."""
+        a = self.board.albedo_cell(self.to_board(points), np.asarray(dx, float) @ self.R,
+                                   np.asarray(dy, float) @ self.R)
         return np.repeat(a[:, None], 3, axis=1)
 
     def to_dict(self) -> dict[str, Any]:
