@@ -128,6 +128,37 @@ def test_chessboard_corners_against_exact_homography(size):
     assert detect_chessboard(np.full((h, w), 128, np.uint8), (nx, ny)) is None
 
 
+def test_smoothed_refinement_lowers_corner_error_on_rendered_boards():
+    """Three simulated 1536 x 1152 poses (noise free): corners refined on the image smoothed
+    by 1.5 px land within 0.035 px RMS of the truth, and at least 15 % closer than refined
+    on the image itself (cornerSubPix's sub-pixel phase bias on sharp edges)."""
+    from nurbscan.calibrate import detect_chessboard
+    from nurbscan.simulate import BoardScene, Chessboard, RenderSettings, render_view
+    from nurbscan.simulate.rig import default_rig, scale_camera
+    from nurbscan.simulate.scan import default_pattern
+    from nurbscan.simulate.target import free_board_poses
+
+    rig = scale_camera(default_rig(), 1536, 1152)
+    board = Chessboard()
+    aim = np.asarray(rig.turntable.to_rig(np.zeros((1, 3)), 0.0))[0] * [0, 0, 1]
+    m = np.asarray(rig.turntable.to_rig(np.vstack([np.zeros(3), np.eye(3)]), 0.0))
+    mm, tt = (m[1:] - m[0]).T, m[0]
+    pat = default_pattern(rig.projector)
+    errs = {0.0: [], 1.5: []}
+    for r_b, t_b in free_board_poses(board, aim)[1:4]:
+        scene = BoardScene(board, mm.T @ r_b, mm.T @ (t_b - tt))
+        white = render_view(scene, rig, pat, 0.0, RenderSettings(table=False, noise=0.0),
+                            albedo=scene.albedo, albedo_cell=scene.albedo_cell).white
+        truth = rig.camera.project(board.corners() @ r_b.T + t_b)
+        for sigma, e in errs.items():
+            c = detect_chessboard(white, (board.cols, board.rows), refine_sigma=sigma)
+            if np.linalg.norm(c[0] - truth[0]) > np.linalg.norm(c[0] - truth[-1]):
+                c = c[::-1]
+            e.append(np.sum((c - truth) ** 2, axis=1))
+    sharp, smooth = (np.sqrt(np.mean(np.concatenate(errs[k]))) for k in (0.0, 1.5))
+    assert smooth < 0.035 and smooth < 0.85 * sharp
+
+
 def test_camera_refuses_too_few_and_parallel_views():
     rng = np.random.default_rng(4)
     corners, _ = _views(2, rng)

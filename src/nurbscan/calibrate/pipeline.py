@@ -189,12 +189,11 @@ def edge_observations(det, kc, rvec, tvec, target: Target, view: int, dc,
 def corner_weights(per_view_rms: np.ndarray) -> np.ndarray:
     """Weights (P,) of each view's chessboard corners in the joint bundle.
 
-    Corner errors are not alike from view to view: a board seen nearly square to the pixel
-    grid, out of focus or under a glint gives corners several times worse than the others
-    (found on the simulated default rig: the square-on pose's corners are 0.12 px RMS off the
-    truth, the tilted ones' 0.03-0.06 px; there mostly an artefact of the renderer, which
-    samples a printed edge on a 4 x 4 sub-pixel grid, so an edge along the pixel rows or
-    columns moves in quarter pixels). Each view's corner residuals are scaled by
+    Corner errors are not alike from view to view: a board out of focus, under a glint or
+    seen at a grazing angle gives corners several times worse than the others (on the
+    simulated default rig the views' corner errors now range over 0.013-0.027 px RMS; when
+    the renderer still point-sampled the printed edges, its square-on pose was at 0.12 px
+    against 0.03-0.06 px for the others). Each view's corner residuals are scaled by
     ``min(1, median / rms_i)`` (``rms_i`` its RMS in the camera-only fit): inverse-variance
     weighting of the views worse than the median (variance components by view; Foerstner
     1979), the others kept at 1 so that a single good view does not dominate.
