@@ -241,10 +241,8 @@ def test_encode_matches_the_plain_sensor_model():
             img = cv2.GaussianBlur(lin, (0, 0), sigmaX=s.camera_blur, sigmaY=s.camera_blur,
                                    borderType=cv2.BORDER_REFLECT)
         e = img * np.float32(s.exposure * s.full_well)
-        shot = np.sqrt(np.clip(e, 0, None))
-        e = e + np.float32(s.noise) * shot * rng.standard_normal(e.shape, dtype=np.float32)
-        e += np.float32(s.noise * s.read_noise) * rng.standard_normal(e.shape,
-                                                                      dtype=np.float32)
+        sd = np.sqrt(np.clip(e, 0, None) + np.float32(s.read_noise ** 2))
+        e = e + np.float32(s.noise) * sd * rng.standard_normal(e.shape, dtype=np.float32)
         v = np.clip(e / np.float32(s.full_well), 0.0, 1.0)
         if s.gamma != 1:
             v = v ** np.float32(1.0 / s.gamma)

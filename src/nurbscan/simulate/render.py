@@ -14,7 +14,9 @@ stored as truth). For one view at table angle theta:
    its projection ``projector.project(X)`` falls inside the projector image
    ([-0.5, width - 0.5] x [-0.5, height - 0.5]), and the ray cast
    from the projector's centre towards X first meets the scene at X (within
-   ``shadow_epsilon`` mm): the projector sees the same surface point.
+   ``shadow_epsilon`` mm): the projector sees the same surface point. Scenes that cannot
+   shadow themselves (``self_shadowing = False``: a plane, the sphere) need that ray only for
+   points on the table.
 4. **Pattern.** The projector coordinate (u, v) of X is ``projector.project(X)`` (Tsai,
    inverted distortion). The projected light there is the pattern blurred by the projector's
    defocus, a Gaussian of ``projector_blur`` projector px. It is evaluated analytically: each
@@ -541,6 +543,8 @@ def _trace(ctx: _Context, pix: np.ndarray,
                & (proj[:, 1] <= ph - 0.5) & (cos_p > 0))
     # shadow rays from the projector's centre (object frame)
     li = np.flatnonzero(lit)
+    if not getattr(ctx.scene, "self_shadowing", True):
+        li = li[on_v[li]]  # the scene's own points cannot be shadowed: the table's only
     if li.size:
         po = _mv(m.T, ctx.proj_centre - t)
         lit[li[_shadowed(ctx.scene, po, x_obj[li], cos_p[li], s.shadow_epsilon)]] = False
@@ -682,8 +686,9 @@ def encode(linear: np.ndarray, settings: RenderSettings,
     s = settings
     img = np.ascontiguousarray(linear, dtype=np.float32)
     # in place, float32 throughout (the same operations, hence bits, as the plain expressions
-    # e + noise * sqrt(max(e, 0)) * N1 + noise * read_noise * N2, clip(e / full_well, 0, 1)^(1/g));
-    # few fresh arrays: each new 85 MB buffer costs its page faults
+    # e + noise * sqrt(max(e, 0) + read_noise^2) * N, clip(e / full_well, 0, 1)^(1/g): shot and
+    # read noise are independent Gaussians, so one draw of their summed variance is the same
+    # distribution); few fresh arrays: each new 85 MB buffer costs its page faults
     if s.camera_blur > 0:
         e = cv2.GaussianBlur(img, (0, 0), sigmaX=s.camera_blur, sigmaY=s.camera_blur,
                              borderType=cv2.BORDER_REFLECT)
@@ -691,17 +696,14 @@ def encode(linear: np.ndarray, settings: RenderSettings,
     else:
         e = img * np.float32(s.exposure * s.full_well)
     if s.noise > 0 and rng is not None:
-        shot = np.clip(e, 0, None)
-        np.sqrt(shot, out=shot)
-        np.multiply(np.float32(s.noise), shot, out=shot)
+        sd = np.clip(e, 0, None)
+        sd += np.float32(s.read_noise ** 2)
+        np.sqrt(sd, out=sd)
+        np.multiply(np.float32(s.noise), sd, out=sd)
         buf = np.empty_like(e)
-        shot *= rng.standard_normal(dtype=np.float32, out=buf)
-        e += shot
-        del shot
-        rng.standard_normal(dtype=np.float32, out=buf)  # the read noise, same stream
-        np.multiply(np.float32(s.noise * s.read_noise), buf, out=buf)
-        e += buf
-        del buf
+        sd *= rng.standard_normal(dtype=np.float32, out=buf)
+        e += sd
+        del sd, buf
     np.divide(e, np.float32(s.full_well), out=e)
     np.clip(e, 0.0, 1.0, out=e)
     if s.gamma != 1:

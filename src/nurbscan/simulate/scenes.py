@@ -199,6 +199,9 @@ class Scene:
     """
 
     name = "scene"
+    #: Whether the surface can cast shadows on itself (the renderer skips the shadow rays of
+    #: its points when not: a plane, or a convex body lit on the side facing the light).
+    self_shadowing = True
 
     # ---- surface description (subclasses) -------------------------------------------------
     @property
@@ -1135,6 +1138,7 @@ class Sphere(Scene):
     radius: float = 60.0
     center: tuple = (0.0, 0.0, 60.0)
     name = "sphere"
+    self_shadowing = False
 
     def __post_init__(self):
         object.__setattr__(self, "radius", _positive(self.radius, "sphere radius"))
@@ -1506,6 +1510,7 @@ class Plane(Scene):
     normal: tuple = (0.0, 0.0, 1.0)
     size: float | None = 200.0
     name = "plane"
+    self_shadowing = False
 
     def __post_init__(self):
         object.__setattr__(self, "point", _vec3(self.point, "plane point"))

@@ -142,6 +142,7 @@ class BoardScene:
     """
 
     name = "chessboard"
+    self_shadowing = False  # a plane (shadow rays are cast for the table's points only)
 
     def __init__(self, board: Chessboard, R: np.ndarray, T: np.ndarray):
         self.board = board
