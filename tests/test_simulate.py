@@ -313,6 +313,10 @@ def test_board_albedo_cell_matches_supersampling():
     ref = brute(p, dx, dy)
     assert np.ptp(ref) > 0.5  # the cells do straddle edges
     np.testing.assert_allclose(b.albedo_cell(p, dx, dy), ref, atol=0.01)
+    # one cell over a square wide takes every cell through the sum over all boundaries
+    wide = b.albedo_cell(*(np.vstack([a, w]) for a, w in ((p, [0, 0]), (dx, [30, 0]),
+                                                            (dy, [0, 30]))))
+    np.testing.assert_allclose(wide[:-1], b.albedo_cell(p, dx, dy), atol=1e-12)
     # corner cells along the axes: the product of the one-axis means is exact
     pc = np.stack([k * s, j * s], 1) + rng.normal(0, 0.03, (n, 2))
     ax, ay = np.abs(dx[:, :1]) * [1, 0], np.abs(dy[:, 1:]) * [0, 1]
@@ -336,9 +340,13 @@ def test_printed_edges_move_with_the_board(rig_small):
     m = np.asarray(rig_small.turntable.to_rig(np.vstack([np.zeros(3), np.eye(3)]), 0.0))
     mm, tt = (m[1:] - m[0]).T, m[0]
     scene = BoardScene(board, mm.T @ r_b, mm.T @ (t_b - tt))
-    r = render_view(scene, rig_small, default_pattern(rig_small.projector), 0.0,
-                    RenderSettings(table=False, noise=0.0), albedo=scene.albedo,
-                    albedo_cell=scene.albedo_cell)
+    args = (scene, rig_small, default_pattern(rig_small.projector), 0.0,
+            RenderSettings(table=False, noise=0.0))
+    r = render_view(*args, albedo=scene.albedo, albedo_cell=scene.albedo_cell, truth=False)
+    # without the 3-D truth (as for calibration images) the images are the same
+    full = render_view(*args, albedo=scene.albedo, albedo_cell=scene.albedo_cell)
+    assert np.array_equal(r.white, full.white) and np.array_equal(r.grid, full.grid)
+    assert "point_obj" in full.truth and "point_obj" not in r.truth and "proj_x" in r.truth
     truth = rig_small.camera.project(board.corners() @ r_b.T + t_b)
     c = detect_chessboard(r.white, (board.cols, board.rows))
     if np.linalg.norm(c[0] - truth[0]) > np.linalg.norm(c[0] - truth[-1]):

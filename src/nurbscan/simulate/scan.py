@@ -218,7 +218,8 @@ def _render_job(ctx: _JobContext, job: dict[str, Any]):
     bs = BoardScene(job["board"], r_o, t_o)
     ss = s if kind == "turntable" else s.replace(table=False)
     r = render_view(bs, ctx.rig, ctx.pattern, angle, ss, seed=ctx.seed, stream=1000 + i,
-                    albedo=bs.albedo, albedo_cell=bs.albedo_cell, workers=ctx.threads)
+                    albedo=bs.albedo, albedo_cell=bs.albedo_cell, workers=ctx.threads,
+                    truth=False)
     g, w = f"calibration/pose_{i:02d}_grid.png", f"calibration/pose_{i:02d}_white.png"
     head = f"calibration pose {i + 1}/{job['poses']} ({kind}" + (
         f", table {math.degrees(angle):.0f} deg)" if kind == "turntable" else ")")

@@ -95,9 +95,20 @@ class Chessboard:
         s = self.square
         means = []
         for axis, n in ((0, self.cols), (1, self.rows)):
+            x, a, b = p[:, axis], np.abs(dx[:, axis]), np.abs(dy[:, axis])
+            # the footprint (half-width (a + b) / 2) meets at most the nearest square boundary
+            # k s (k = -1 .. n) when it is under half a square wide; else the general sum
+            k = np.clip(np.rint(x / s), -1, n)
+            if np.all(a + b < s):
+                f = step_coverage(x - k * s, a, b)  # share beyond boundary k
+                g_lo = ((k - 1 >= -1) & (k - 1 <= n - 1)).astype(float)  # squares left of k
+                g_hi = ((k >= -1) & (k <= n - 1)).astype(float)
+                s_lo = np.where((k - 1) % 2 == 0, 1.0, -1.0) * g_lo
+                s_hi = np.where(k % 2 == 0, 1.0, -1.0) * g_hi
+                means.append((g_lo + f * (g_hi - g_lo), s_lo + f * (s_hi - s_lo)))
+                continue
             breaks = np.arange(-1, n + 1) * s  # square boundaries along this axis
-            f = step_coverage(p[:, axis, None] - breaks, np.abs(dx[:, axis, None]),
-                              np.abs(dy[:, axis, None]))
+            f = step_coverage(x[:, None] - breaks, a[:, None], b[:, None])
             cover = f[:, :-1] - f[:, 1:]  # share of the footprint in each square
             sign = np.where(np.arange(-1, n) % 2 == 0, 1.0, -1.0)
             means.append((cover.sum(axis=1), cover @ sign))
