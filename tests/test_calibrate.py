@@ -132,21 +132,17 @@ def test_smoothed_refinement_lowers_corner_error_on_rendered_boards():
     """Three simulated 1536 x 1152 poses (noise free): corners refined on the image smoothed
     by 1.5 px land within 0.035 px RMS of the truth, and at least 15 % closer than refined
     on the image itself (cornerSubPix's sub-pixel phase bias on sharp edges)."""
+    from _board_fixtures import free_board
     from nurbscan.calibrate import detect_chessboard
-    from nurbscan.simulate import BoardScene, Chessboard, RenderSettings, render_view
+    from nurbscan.simulate import RenderSettings, render_view
     from nurbscan.simulate.rig import default_rig, scale_camera
     from nurbscan.simulate.scan import default_pattern
-    from nurbscan.simulate.target import free_board_poses
 
     rig = scale_camera(default_rig(), 1536, 1152)
-    board = Chessboard()
-    aim = np.asarray(rig.turntable.to_rig(np.zeros((1, 3)), 0.0))[0] * [0, 0, 1]
-    m = np.asarray(rig.turntable.to_rig(np.vstack([np.zeros(3), np.eye(3)]), 0.0))
-    mm, tt = (m[1:] - m[0]).T, m[0]
     pat = default_pattern(rig.projector)
     errs = {0.0: [], 1.5: []}
-    for r_b, t_b in free_board_poses(board, aim)[1:4]:
-        scene = BoardScene(board, mm.T @ r_b, mm.T @ (t_b - tt))
+    for k in (1, 2, 3):
+        board, scene, r_b, t_b = free_board(rig, k)
         white = render_view(scene, rig, pat, 0.0, RenderSettings(table=False, noise=0.0),
                             albedo=scene.albedo, albedo_cell=scene.albedo_cell).white
         truth = rig.camera.project(board.corners() @ r_b.T + t_b)

@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
+from _board_fixtures import free_board
 from nurbscan.errors import NurbscanError
 from nurbscan.io import read_image, write_image
 from nurbscan.pattern import Pattern, load_pattern
@@ -21,7 +22,7 @@ from nurbscan.simulate.render import RenderSettings, render_view
 from nurbscan.simulate.rig import axis_angle, default_rig, scale_camera
 from nurbscan.simulate.scan import default_pattern
 from nurbscan.simulate.scenes import make_scene
-from nurbscan.simulate.target import BoardScene, Chessboard, free_board_poses
+from nurbscan.simulate.target import Chessboard
 
 ANGLE = 0.7  # table angle of the test views, rad
 
@@ -257,12 +258,7 @@ def test_encode_matches_the_plain_sensor_model():
 
 # ---------------------------------------------------------------------------- target
 def test_chessboard_corners_match_pose(rig_small):
-    board = Chessboard()
-    aim = np.asarray(rig_small.turntable.to_rig(np.zeros((1, 3)), 0.0))[0] * [0, 0, 1]
-    r_b, t_b = free_board_poses(board, aim)[3]
-    m = np.asarray(rig_small.turntable.to_rig(np.vstack([np.zeros(3), np.eye(3)]), 0.0))
-    mm, tt = (m[1:] - m[0]).T, m[0]
-    scene = BoardScene(board, mm.T @ r_b, mm.T @ (t_b - tt))
+    board, scene, r_b, t_b = free_board(rig_small, 3)
     pat = default_pattern(rig_small.projector)
     s = RenderSettings(table=False, noise=0.0)
     r = render_view(scene, rig_small, pat, 0.0, s, albedo=scene.albedo)
@@ -334,12 +330,7 @@ def test_printed_edges_move_with_the_board(rig_small):
     sampled on the 4 x 4 sub-samples the edges snap to quarter pixels: about 0.12 px)."""
     from nurbscan.calibrate import detect_chessboard
 
-    board = Chessboard()
-    aim = np.asarray(rig_small.turntable.to_rig(np.zeros((1, 3)), 0.0))[0] * [0, 0, 1]
-    r_b, t_b = free_board_poses(board, aim)[0]
-    m = np.asarray(rig_small.turntable.to_rig(np.vstack([np.zeros(3), np.eye(3)]), 0.0))
-    mm, tt = (m[1:] - m[0]).T, m[0]
-    scene = BoardScene(board, mm.T @ r_b, mm.T @ (t_b - tt))
+    board, scene, r_b, t_b = free_board(rig_small, 0)
     args = (scene, rig_small, default_pattern(rig_small.projector), 0.0,
             RenderSettings(table=False, noise=0.0))
     r = render_view(*args, albedo=scene.albedo, albedo_cell=scene.albedo_cell, truth=False)

@@ -28,6 +28,13 @@ TYPE = "nurbscan.chessboard"
 VERSION = 1
 
 
+def _factors(j: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """g and g_s of :meth:`Chessboard.albedo_cell` on square ``j`` of an axis with ``n`` inner
+    corners (squares -1 .. n - 1): 1 on the squares, and signed +1 / -1 on even / odd ones."""
+    g = ((j >= -1) & (j <= n - 1)).astype(float)
+    return g, np.where(j % 2 == 0, g, -g)
+
+
 @dataclass(frozen=True)
 class Chessboard:
     """A printed chessboard target.
@@ -96,22 +103,19 @@ class Chessboard:
         means = []
         for axis, n in ((0, self.cols), (1, self.rows)):
             x, a, b = p[:, axis], np.abs(dx[:, axis]), np.abs(dy[:, axis])
-            # the footprint (half-width (a + b) / 2) meets at most the nearest square boundary
-            # k s (k = -1 .. n) when it is under half a square wide; else the general sum
-            k = np.clip(np.rint(x / s), -1, n)
+
             if np.all(a + b < s):
-                f = step_coverage(x - k * s, a, b)  # share beyond boundary k
-                g_lo = ((k - 1 >= -1) & (k - 1 <= n - 1)).astype(float)  # squares left of k
-                g_hi = ((k >= -1) & (k <= n - 1)).astype(float)
-                s_lo = np.where((k - 1) % 2 == 0, 1.0, -1.0) * g_lo
-                s_hi = np.where(k % 2 == 0, 1.0, -1.0) * g_hi
-                means.append((g_lo + f * (g_hi - g_lo), s_lo + f * (s_hi - s_lo)))
+                # a footprint narrower than a square meets at most the nearest boundary k s
+                k = np.clip(np.rint(x / s), -1, n)
+                f = step_coverage(x - k * s, a, b)  # its share beyond boundary k
+                (g0, gs0), (g1, gs1) = _factors(k - 1, n), _factors(k, n)
+                means.append((g0 + f * (g1 - g0), gs0 + f * (gs1 - gs0)))
                 continue
-            breaks = np.arange(-1, n + 1) * s  # square boundaries along this axis
+            breaks = np.arange(-1, n + 1) * s  # every square boundary along this axis
             f = step_coverage(x[:, None] - breaks, a[:, None], b[:, None])
             cover = f[:, :-1] - f[:, 1:]  # share of the footprint in each square
-            sign = np.where(np.arange(-1, n) % 2 == 0, 1.0, -1.0)
-            means.append((cover.sum(axis=1), cover @ sign))
+            g, gs = _factors(np.arange(-1, n), n)
+            means.append((cover @ g, cover @ gs))
         (gx, gsx), (gy, gsy) = means
         black = 0.5 * (gx * gy + gsx * gsy)
         return self.white + (self.black - self.white) * black
