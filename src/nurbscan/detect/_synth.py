@@ -31,8 +31,11 @@ def _field(xc: np.ndarray, yc: np.ndarray, w: int, h: int, pw: int, ph: int, amp
 
 def synth_view(pattern, width: int = 640, height: int = 480, noise: float = 0.01,
                blur: float = 0.5, ss: int = 2, gamma: float = 2.2, amp: float = 1.0, seed: int = 0,
-               crosstalk: np.ndarray | None = CROSSTALK, shading: bool = True):
+               crosstalk: np.ndarray | None = CROSSTALK, shading: bool = True, field=None):
     """Render a warped view of ``pattern``.
+
+    ``field(xc, yc, w, h, pw, ph)`` (optional) maps camera points (px) to projector points
+    (px) instead of the default warp.
 
     Returns
     -------
@@ -49,7 +52,10 @@ def synth_view(pattern, width: int = 640, height: int = 480, noise: float = 0.01
     # sub-sample centres of camera pixel (i, j): i - 0.5 + (k + 0.5) / ss
     xs = (np.arange(width * ss, dtype=np.float64) + 0.5) / ss - 0.5
     ys = (np.arange(height * ss, dtype=np.float64) + 0.5) / ss - 0.5
-    Xs, Ys = _field(xs[None, :], ys[:, None], width, height, pw, ph, amp)
+    if field is None:
+        def field(xc, yc, w, h, pw, ph):
+            return _field(xc, yc, w, h, pw, ph, amp)
+    Xs, Ys = field(xs[None, :], ys[:, None], width, height, pw, ph)
     mx = Xs.astype(np.float32)
     my = Ys.astype(np.float32)
     hi = cv2.remap(proj, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
@@ -69,8 +75,8 @@ def synth_view(pattern, width: int = 640, height: int = 480, noise: float = 0.01
         white = white * (sh[..., None] * alb)
     img = img + rng.normal(0, noise, img.shape).astype(np.float32) + 0.02
     white = white + rng.normal(0, noise, img.shape).astype(np.float32) + 0.02
-    px, py = _field(np.arange(width, dtype=np.float64)[None, :],
-                    np.arange(height, dtype=np.float64)[:, None], width, height, pw, ph, amp)
+    px, py = field(np.arange(width, dtype=np.float64)[None, :],
+                   np.arange(height, dtype=np.float64)[:, None], width, height, pw, ph)
     img = np.round(np.clip(img, 0, 1) ** (1 / gamma) * 255) / 255
     white = np.round(np.clip(white, 0, 1) ** (1 / gamma) * 255) / 255
     return (img.astype(np.float32), white.astype(np.float32),

@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import NurbscanError
 from .decode import band_crossings, bilinear, classify_colours, line_labels, window_votes
 from .edges import detect_edge_points, refine_by_channels
-from .lines import join_collinear, local_residual, neighbour_fit, trace_lines
+from .lines import chain_slope, join_collinear, local_residual, neighbour_fit, trace_lines
 from .normalize import normalize
 from .result import DetectionResult
 
@@ -621,7 +621,7 @@ def band_width_px(signal: np.ndarray, pattern, valid: np.ndarray | None = None) 
     y0, x0 = max(h // 2 - c, 0), max(w // 2 - c, 0)
     crop = signal[y0:y0 + 2 * c, x0:x0 + 2 * c]
     vc = None if valid is None else valid[y0:y0 + 2 * c, x0:x0 + 2 * c]
-    pts = detect_edge_points(crop, sigma=1.0, valid=vc)
+    pts = detect_edge_points(crop, sigma=1.0, valid=vc, families=False)
     k = pts.cls < 2
     o, st = band_crossings(pts.x[k], pts.iy[k], pts.cls[k] % 2, pattern.band / pattern.pitch)
     if len(st) < 10:
@@ -666,7 +666,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                 keep_unsupported: bool = False, interpolation_rounds: int = 3,
                 interpolation_span: float = 2.2, interpolation_tol: float = 0.1,
                 require_colour: bool = True, collinear_rounds: int = 5,
-                collinear_unknown: bool = True) -> DetectionResult:
+                collinear_unknown: bool = True, families: bool = True) -> DetectionResult:
     """Find, trace and decode the grid's edge lines in one photograph.
 
     Parameters
@@ -800,6 +800,17 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     collinear_unknown : bool
         In those rounds, a piece of unknown colour also takes the label of the piece it
         continues (a contradicting colour still stops it).
+    families : bool
+        Tell vertical-band from horizontal-band edge pixels by the two families' local
+        directions (:func:`~nurbscan.detect.edges.family_normals`) instead of by ``|g_x|``
+        against ``|g_y|``: where the vertical bands tilt past 45 degrees (the teapot's lid)
+        they are otherwise read as horizontal and spoil that family's decoding too. 7.1 MP
+        teapot views 0-7, with the slope-following tracer and the tilt-aware refinement:
+        coverage 0.625 -> 0.661, RMS 0.046 -> 0.042 px, labels 99.999 %, no wrong line
+        (without it the refinement keeps the misread lid edges: RMS 0.093 px). Only where
+        the bands are resolved (``FINE_BAND_PX``): bands 3 px wide give the gradient
+        directions spurious modes (a 640 x 480 view of the calibration board has one at 45
+        degrees).
 
     Returns
     -------
@@ -850,7 +861,8 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         min_row_support, max_row_residual, keep_unsupported = 0.0, 0.0, True
         interpolation_rounds, collinear_rounds = 0, 0
     pts = detect_edge_points(sig, sigma=sigma, threshold=threshold, valid=nrm.valid,
-                             sigma_along=sigma_along, dominance=dominance)
+                             sigma_along=sigma_along, dominance=dominance,
+                             families=families and fine)
     # a dark gap: well below the dimmest single-primary band (sum of channels ~1 in a band)
     dark_level = 0.35
     if len(pts.x) < 20:
@@ -1018,8 +1030,19 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         inv = nrm.inverse if len(nrm.inverse) == 3 else nrm.inverse * 3
         chn = [c * i for c, i in zip(nrm.channels, inv, strict=True)]
         colour = np.asarray(pattern.rgb)[seq[lab[line]]] > 127
+        normal = None
+        if fine:
+            # a point is judged clean along its chain's normal: (1, -slope) for vertical
+            # edges (x = c + slope y), (-slope, 1) for horizontal ones, so that edges tilted
+            # past 14 degrees are re-measured too (narrow bands keep the x / y rule: there
+            # the extra points cost accuracy, 640 x 480 calibration views)
+            vk0 = cls[keep] < 2
+            slope = chain_slope(np.where(vk0, py, px), np.where(vk0, px, py), line)
+            nn = np.hypot(1.0, slope)
+            normal = np.where(vk0[:, None], np.c_[1.0 / nn, -slope / nn],
+                              np.c_[-slope / nn, 1.0 / nn])
         px, py, done = refine_by_channels(chn, ix[keep], iy[keep], cls[keep], colour, px, py,
-                                          sigma, sigma_along)
+                                          sigma, sigma_along, normal=normal)
         del chn
         # points with no clean channel (their crossing band shares the band's channels) are
         # placed on the straight line through their re-measured chain neighbours

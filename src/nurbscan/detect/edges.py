@@ -6,10 +6,16 @@ A pixel is an edge pixel where the second derivative across the edge crosses zer
 slope, i.e. where the first derivative has a strict local maximum across the edge. Edges are
 classified by the gradient direction:
 
-* *vertical* band edges (``|s_x| >= |s_y|``), searched along the pixel row as maxima of
-  ``|s_x|``, rising where ``s_x > 0`` (dark to light in +x) and falling where ``s_x < 0``;
-* *horizontal* band edges (``|s_y| > |s_x|``), searched along the pixel column as maxima of
-  ``|s_y|``, rising where ``s_y > 0`` and falling where ``s_y < 0``.
+* *vertical* band edges, searched along the pixel row as maxima of ``|s_x|``, rising where
+  ``s_x > 0`` (dark to light in +x) and falling where ``s_x < 0``;
+* *horizontal* band edges, searched along the pixel column as maxima of ``|s_y|``, rising
+  where ``s_y > 0`` and falling where ``s_y < 0``.
+
+A pixel's family is the one whose local direction its gradient is closer to
+(:func:`family_normals`): on a surface seen obliquely the vertical bands can tilt past 45
+degrees (the teapot's lid: the two families meet at about 33 degrees there), where the plain
+rule ``|s_x| >= |s_y|`` would call them horizontal. Where the two families are upright the
+rule is the plain one.
 
 For a straight edge the maximum of the derivative along any line across it lies on the edge,
 so the row (column) search finds the same points as a search along the gradient, on the pixel
@@ -93,6 +99,70 @@ class EdgePoints:
     gy: np.ndarray
 
 
+def family_normals(gx: np.ndarray, gy: np.ndarray, strong: np.ndarray, tile: int = 48,
+                   bins: int = 36, min_ratio: float = 0.15, min_separation: float = 0.35
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Local normal directions of the vertical and the horizontal band edges (radians).
+
+    The gradient directions ``atan2(gy, gx)`` (mod pi) of the ``strong`` pixels are
+    histogrammed (``bins`` bins, weighted by the gradient magnitude) per ``tile`` x ``tile``
+    px tile and smoothed over the 3 x 3 neighbouring tiles and the neighbouring bins; the two
+    highest peaks at least ``min_separation`` apart (the second at least ``min_ratio`` of the
+    first) are the two families' normals, and the one nearer the image's y axis is the
+    horizontal bands' (in the projector the bands are upright; in the camera the horizontal
+    ones stay closer to horizontal, nearly along the epipolar lines of a camera beside the
+    projector). Tiles with one family or none take the image axes (0 and pi / 2). This is a
+    histogram of oriented gradients (Dalal and Triggs 2005) read for its two modes.
+
+    Parameters
+    ----------
+    gx, gy : ndarray (H, W)
+        Gradient of the edge signal.
+    strong : ndarray (H, W) bool
+        Edge pixels to count.
+
+    Returns
+    -------
+    theta_v, theta_h : ndarray (ceil(H / tile), ceil(W / tile)) float64
+        Normal angle of each family per tile, radians in [0, pi).
+    """
+    h, w = gx.shape
+    ty, tx = -(-h // tile), -(-w // tile)
+    iy, ix = np.nonzero(strong)
+    ax, ay = gx[iy, ix], gy[iy, ix]
+    phi = np.mod(np.arctan2(ay, ax), np.pi)
+    b = np.minimum((phi * (bins / np.pi)).astype(np.int64), bins - 1)
+    t = (iy // tile).astype(np.int64) * tx + ix // tile
+    hist = np.bincount(t * bins + b, weights=np.hypot(ax, ay),
+                       minlength=ty * tx * bins).reshape(ty, tx, bins)
+    from scipy.ndimage import uniform_filter1d
+
+    hist = uniform_filter1d(uniform_filter1d(hist, 3, axis=0, mode="nearest"), 3, axis=1,
+                            mode="nearest")
+    hist = 0.5 * hist + 0.25 * (np.roll(hist, 1, axis=2) + np.roll(hist, -1, axis=2))
+    centre = (np.arange(bins) + 0.5) * (np.pi / bins)
+
+    def peak(hh):
+        k = np.argmax(hh, axis=2)
+        v0 = np.take_along_axis(hh, k[..., None], 2)[..., 0]
+        vm = np.take_along_axis(hh, ((k - 1) % bins)[..., None], 2)[..., 0]
+        vp = np.take_along_axis(hh, ((k + 1) % bins)[..., None], 2)[..., 0]
+        den = vm - 2 * v0 + vp
+        with np.errstate(all="ignore"):
+            d = np.where(den < 0, 0.5 * (vm - vp) / den, 0.0)
+        return np.mod(centre[k] + np.clip(d, -0.5, 0.5) * (np.pi / bins), np.pi), v0
+
+    a1, v1 = peak(hist)
+    sep = np.abs(np.mod(centre[None, None, :] - a1[..., None] + np.pi / 2, np.pi) - np.pi / 2)
+    a2, v2 = peak(np.where(sep >= min_separation, hist, 0.0))
+    two = (v1 > 0) & (v2 >= min_ratio * v1)
+    # the horizontal family's normal is the one nearer pi / 2
+    d1, d2 = np.abs(a1 - np.pi / 2), np.abs(a2 - np.pi / 2)
+    th = np.where(d1 <= d2, a1, a2)
+    tv = np.where(d1 <= d2, a2, a1)
+    return np.where(two, tv, 0.0), np.where(two, th, np.pi / 2)
+
+
 def _subpixel(lm: np.ndarray, l0: np.ndarray, lp: np.ndarray) -> np.ndarray:
     den = lm - 2.0 * l0 + lp
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -102,7 +172,7 @@ def _subpixel(lm: np.ndarray, l0: np.ndarray, lp: np.ndarray) -> np.ndarray:
 
 def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float = 0.06,
                        valid: np.ndarray | None = None, sigma_along: float | None = None,
-                       dominance: float = 1.0) -> EdgePoints:
+                       dominance: float = 1.0, families: bool = True) -> EdgePoints:
     """Find the sub-pixel edge points of ``signal`` (module notes).
 
     Parameters
@@ -122,7 +192,10 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         A pixel is a vertical-edge candidate where ``|gx| >= dominance |gy|`` and a
         horizontal-edge candidate where ``|gy| > dominance |gx|``; below 1 a pixel may be both
         (near a crossing band's corner the other direction's gradient dominates, yet the
-        edge's row or column profile still has its peak there).
+        edge's row or column profile still has its peak there). With ``families`` the two
+        components are taken along the local normals of the two families instead of x and y.
+    families : bool
+        Classify by the local family directions (:func:`family_normals`, module notes).
 
     Returns
     -------
@@ -142,18 +215,36 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     b = int(np.ceil(3.0 * max(sigma, sigma_along or 0.0))) + 1
     strong[:b] = strong[-b:] = False
     strong[:, :b] = strong[:, -b:] = False
+    if families:
+        # the gradient's components along the two families' local normals
+        tv, th = family_normals(gx, gy, strong)
+        tile_maps = [cv2.resize(f(2 * t).astype(np.float32), (w, h),
+                                interpolation=cv2.INTER_LINEAR)
+                     for t in (tv, th) for f in (np.cos, np.sin)]
+        sy, sx = np.nonzero(strong)
+        comp = []
+        for c2, s2 in (tile_maps[:2], tile_maps[2:]):
+            ang = 0.5 * np.arctan2(s2[sy, sx], c2[sy, sx])
+            comp.append(np.abs(gx[sy, sx] * np.cos(ang) + gy[sy, sx] * np.sin(ang)))
+        del tile_maps
+        vmask = np.zeros((h, w), bool)
+        hmask = np.zeros((h, w), bool)
+        vmask[sy, sx] = comp[0] >= dominance * comp[1]
+        hmask[sy, sx] = comp[1] > dominance * comp[0]
+        del sy, sx, comp
+    else:
+        vmask = strong & (ax >= dominance * ay)
+        hmask = strong & (ay > dominance * ax)
     out = []
     # vertical class: maximum of m along the row
     c = np.zeros((h, w), bool)
-    c[:, 1:-1] = (strong[:, 1:-1] & (ax[:, 1:-1] >= dominance * ay[:, 1:-1])
-                  & (ax[:, 1:-1] > ax[:, :-2]) & (ax[:, 1:-1] >= ax[:, 2:]))
+    c[:, 1:-1] = (vmask[:, 1:-1] & (ax[:, 1:-1] > ax[:, :-2]) & (ax[:, 1:-1] >= ax[:, 2:]))
     iy, ix = np.nonzero(c)
     d = _subpixel(lx[iy, ix - 1], lx[iy, ix], lx[iy, ix + 1])
     out.append((ix + d, iy.astype(np.float64), ix, iy, np.where(gx[iy, ix] > 0, 0, 1),
                 ax[iy, ix], gx[iy, ix], gy[iy, ix]))
     c[:] = False
-    c[1:-1, :] = (strong[1:-1, :] & (ay[1:-1, :] > dominance * ax[1:-1, :])
-                  & (ay[1:-1, :] > ay[:-2, :]) & (ay[1:-1, :] >= ay[2:, :]))
+    c[1:-1, :] = (hmask[1:-1, :] & (ay[1:-1, :] > ay[:-2, :]) & (ay[1:-1, :] >= ay[2:, :]))
     iy, ix = np.nonzero(c)
     d = _subpixel(ly[iy - 1, ix], ly[iy, ix], ly[iy + 1, ix])
     out.append((ix.astype(np.float64), iy + d, ix, iy, np.where(gy[iy, ix] > 0, 2, 3),
@@ -167,7 +258,8 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
 
 def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray,
                        colour: np.ndarray, x: np.ndarray, y: np.ndarray, sigma: float,
-                       sigma_along: float | None = None, clean: float = 0.25
+                       sigma_along: float | None = None, clean: float = 0.25,
+                       normal: np.ndarray | None = None
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Second, per-channel sub-pixel pass for decoded edge points (method.md section 2).
 
@@ -179,7 +271,9 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     channels ``c`` of the colour that are *clean* at the point, i.e. whose derivative along the
     edge is at most ``clean`` times the one across it (no crossing band edge passes there),
     with the same log-parabola fit across the edge as :func:`detect_edge_points`. Using only
-    the band's channels also leaves out the noise of the channels without an edge.
+    the band's channels also leaves out the noise of the channels without an edge. The
+    derivatives along and across the edge are taken along its tangent and normal (``normal``),
+    so a tilted edge is judged as clean as an upright one.
 
     Parameters
     ----------
@@ -194,6 +288,11 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
         channel sum is not at the edge pixel.
     sigma, sigma_along : float
         Filter scales, px (as in :func:`gradient`).
+    clean : float
+        Largest ratio of a channel's derivative along the edge to the one across it.
+    normal : (N, 2) float, optional
+        Unit normal of each edge (the first pass's gradient direction); default the row
+        direction (1, 0) for vertical-band edges and the column direction (0, 1) otherwise.
 
     Returns
     -------
@@ -209,6 +308,9 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
         return x, y, np.zeros(0, bool)
     vert = cls < 2
     sgn = np.where(cls % 2 == 0, 1.0, -1.0)
+    if normal is None:
+        normal = np.where(vert[:, None], [1.0, 0.0], [0.0, 1.0])
+    nx, ny = np.asarray(normal, np.float64).T
     # across-edge derivative samples at offsets -1, 0, +1, and the along-edge derivative
     acc = np.zeros((n, 3))
     used = np.zeros(n, np.int64)
@@ -222,9 +324,11 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     for c in range(3):
         gx, gy = gradient(channels[c], sigma, sigma_along)
         across = np.where(vert[:, None], gx[jy, jx], gy[jy, jx]) * sgn[:, None]
-        along = np.where(vert, gy[iy, ix], gx[iy, ix])
+        cx, cy = gx[iy, ix], gy[iy, ix]
+        along = nx * cy - ny * cx
+        normal_d = nx * cx + ny * cy
         mag.append(across[:, 1])
-        ok = colour[:, c] & (np.abs(along) <= clean * np.abs(across[:, 1])) & (across[:, 1] > 0)
+        ok = colour[:, c] & (np.abs(along) <= clean * np.abs(normal_d)) & (across[:, 1] > 0)
         acc += np.where(ok[:, None], across, 0.0)
         used += ok
         del gx, gy

@@ -1,33 +1,55 @@
 """Chaining edge points into ordered sub-pixel edge lines (method.md section 2).
 
 The edge pixels of each class (vertical rising / falling, horizontal rising / falling) are
-grouped into 8-connected components (``cv2.connectedComponents``). A vertical edge meets each
-pixel row at most once, so a component that holds two pixels of one row has a junction or a
-spur there: those pixels are removed and the components are formed again, which splits the
-chain at the junction. (Horizontal edges: the same with columns.) Chains are therefore split at
-junctions, at gaps (a missing pixel breaks 8-connectivity) and at depth discontinuities (a jump
-of more than one pixel across the edge between neighbouring rows). Each chain is ordered along
+linked from each pixel row to the next: pixel (x, y) continues to (x', y + 1) when
+``|x' - x - round(s)| <= 1``, ``s`` the edge's step in x per row (the mean of the two pixels'
+``-g_y / g_x``, their gradients' tangent direction). For an edge within 27 degrees of upright
+``round(s) = 0`` and this is 8-connectivity between rows; a tilted edge (more than one pixel
+across per row, as the vertical bands on the teapot's lid) still forms one chain. A vertical
+edge meets each pixel row at most once, so a connected component that holds two pixels of one
+row has a junction or a spur there: those pixels are removed and the components are formed
+again, which splits the chain at the junction. (Horizontal edges: the same with columns and
+``-g_x / g_y``.) Chains are therefore split at junctions, at gaps (a missing pixel breaks the
+links) and at depth discontinuities (a jump of more than one pixel across the edge between
+neighbouring rows). Each chain is ordered along
 its run (by row for vertical edges, by column for horizontal ones); chains shorter than
 ``min_length`` points are dropped.
 """
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from .edges import EdgePoints
 
 
-def _components(iy: np.ndarray, ix: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    mask = np.zeros(shape, np.uint8)
-    mask[iy, ix] = 1
-    _, lab = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
-    return lab[iy, ix]
+def _links(run: np.ndarray, acr: np.ndarray, slope: np.ndarray, cls: np.ndarray,
+           size: int, max_slope: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (p, q) of points of one class in neighbouring runs r, r + 1 that continue each
+    other: ``|acr_q - acr_p - round((slope_p + slope_q) / 2)| <= 1`` (pixel units)."""
+    n = len(run)
+    if n == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    key = (cls.astype(np.int64) * size + run) * size + acr
+    o = np.argsort(key)
+    skey = key[o]
+    step = np.rint(np.clip(slope, -max_slope, max_slope)).astype(np.int64)
+    src, dst = [], []
+    for k in range(-2, 3):
+        q = (cls.astype(np.int64) * size + run + 1) * size + acr + step + k
+        j = np.minimum(np.searchsorted(skey, q), n - 1)
+        hit = skey[j] == q
+        src.append(np.nonzero(hit)[0])
+        dst.append(o[j[hit]])
+    p, q = np.concatenate(src), np.concatenate(dst)
+    mean = np.rint(0.5 * (np.clip(slope[p], -max_slope, max_slope)
+                          + np.clip(slope[q], -max_slope, max_slope))).astype(np.int64)
+    ok = np.abs(acr[q] - acr[p] - mean) <= 1
+    return p[ok], q[ok]
 
 
-def trace_lines(pts: EdgePoints, shape: tuple[int, int], min_length: int = 4
-                ) -> tuple[np.ndarray, np.ndarray]:
+def trace_lines(pts: EdgePoints, shape: tuple[int, int], min_length: int = 4,
+                max_slope: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
     """Group edge points into ordered chains.
 
     Parameters
@@ -38,6 +60,9 @@ def trace_lines(pts: EdgePoints, shape: tuple[int, int], min_length: int = 4
         Image size, px.
     min_length : int
         Fewest points of a kept chain.
+    max_slope : float
+        Largest step across the edge per step along it (px per px) that the links follow:
+        4 is an edge 76 degrees off its run's normal.
 
     Returns
     -------
@@ -46,35 +71,86 @@ def trace_lines(pts: EdgePoints, shape: tuple[int, int], min_length: int = 4
     line : ndarray int64 (M,)
         Chain id 0 .. L - 1 of each kept point (non-decreasing).
     """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     n = len(pts.x)
-    keep = np.zeros(n, bool)
-    comp = np.full(n, -1, np.int64)
-    offset = 0
-    for cls in range(4):
-        sel = np.nonzero(pts.cls == cls)[0]
-        if not len(sel):
-            continue
-        iy, ix = pts.iy[sel], pts.ix[sel]
-        along = iy if cls < 2 else ix
-        lab = _components(iy, ix, shape)
-        key = lab.astype(np.int64) * (max(shape) + 1) + along
-        _, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
-        single = cnt[inv] == 1
-        sel, iy, ix, along = sel[single], iy[single], ix[single], along[single]
-        lab = _components(iy, ix, shape).astype(np.int64)
-        comp[sel] = lab + offset
-        keep[sel] = True
-        offset += int(lab.max()) + 1 if len(lab) else 0
+    if n == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    vert = pts.cls < 2
+    run = np.where(vert, pts.iy, pts.ix).astype(np.int64)
+    acr = np.where(vert, pts.ix, pts.iy).astype(np.int64)
+    gx, gy = pts.gx.astype(np.float64), pts.gy.astype(np.float64)
+    with np.errstate(all="ignore"):
+        slope = np.nan_to_num(np.where(vert, -gy / gx, -gx / gy), posinf=max_slope,
+                              neginf=-max_slope)
+    size = int(max(shape)) + 8
+    p, q = _links(run, acr, slope, pts.cls, size, max_slope)
+
+    def components(p, q, keep):
+        m = keep[p] & keep[q]
+        g = coo_matrix((np.ones(int(m.sum())), (p[m], q[m])), shape=(n, n))
+        return connected_components(g, directed=False)[1].astype(np.int64)
+
+    keep = np.ones(n, bool)
+    comp = components(p, q, keep)
+    # a component with two points in one run has a junction or a spur there: drop them
+    key = comp * size + run
+    _, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
+    keep = cnt[inv] == 1
+    comp = components(p, q, keep)
     idx = np.nonzero(keep)[0]
-    along = np.where(pts.cls[idx] < 2, pts.iy[idx], pts.ix[idx])
-    o = np.lexsort((along, comp[idx]))
+    o = np.lexsort((run[idx], comp[idx]))
     idx = idx[o]
     c = comp[idx]
-    uniq, inv, cnt = np.unique(c, return_inverse=True, return_counts=True)
+    _, inv, cnt = np.unique(c, return_inverse=True, return_counts=True)
     good = cnt[inv] >= min_length
     idx, inv = idx[good], inv[good]
     _, line = np.unique(inv, return_inverse=True)
     return idx, line.astype(np.int64)
+
+
+def _window_fit(along: np.ndarray, across: np.ndarray, line: np.ndarray, offs: np.ndarray,
+                use: np.ndarray | None = None):
+    """Least-squares lines ``across = c0 + c1 (along - along_i)`` through the points i + offs
+    of each point's chain (those with ``use``). Returns c0, c1 (M,), the number of points
+    sw (M,) and the weights (M, len(offs)); c0, c1 are NaN-free only where sw >= 2."""
+    n = len(along)
+    i = np.arange(n)
+    counts = np.bincount(line)
+    stop = np.cumsum(counts)
+    first = (stop - counts)[line]
+    last = stop[line] - 1
+    j = i[:, None] + offs[None, :]
+    inside = (j >= first[:, None]) & (j <= last[:, None])
+    j = np.clip(j, 0, n - 1)
+    wts = (inside if use is None else inside & use[j]).astype(np.float64)
+    t = along[j] - along[:, None]
+    v = across[j]
+    sw = wts.sum(1)
+    st = (wts * t).sum(1)
+    stt = (wts * t * t).sum(1)
+    sv = (wts * v).sum(1)
+    stv = (wts * t * v).sum(1)
+    det = sw * stt - st * st
+    with np.errstate(all="ignore"):
+        c1 = (sw * stv - st * sv) / det
+        c0 = (sv - c1 * st) / sw
+    return c0, c1, sw, wts
+
+
+def chain_slope(along: np.ndarray, across: np.ndarray, line: np.ndarray, reach: int = 4
+                ) -> np.ndarray:
+    """Local slope d(across)/d(along) of each chain point (M,), from a least-squares line.
+
+    The line is fitted to the points i - reach .. i + reach of the chain (the point itself
+    included); 0 where fewer than 3 points are there. Arrays (M,) ordered by chain
+    (:func:`trace_lines`).
+    """
+    if len(along) == 0:
+        return np.zeros(0)
+    _, c1, sw, _ = _window_fit(along, across, line, np.arange(-reach, reach + 1))
+    return np.where((sw >= 3) & np.isfinite(c1), c1, 0.0)
 
 
 def local_residual(along: np.ndarray, across: np.ndarray, line: np.ndarray, reach: int = 4
@@ -87,32 +163,12 @@ def local_residual(along: np.ndarray, across: np.ndarray, line: np.ndarray, reac
     chain by more than the noise is an outlier (a disturbed profile at a crossing's corner).
     Arrays (M,) ordered by chain as returned by :func:`trace_lines`.
     """
-    n = len(along)
-    if n == 0:
+    if len(along) == 0:
         return np.zeros(0)
-    i = np.arange(n)
-    counts = np.bincount(line)
-    stop = np.cumsum(counts)
-    first = (stop - counts)[line]
-    last = stop[line] - 1
     offs = np.r_[np.arange(-reach, 0), np.arange(1, reach + 1)]
-    j = i[:, None] + offs[None, :]
-    wts = ((j >= first[:, None]) & (j <= last[:, None])).astype(np.float64)
-    j = np.clip(j, 0, n - 1)
-    t = along[j] - along[:, None]
-    v = across[j]
-    sw = wts.sum(1)
-    st = (wts * t).sum(1)
-    stt = (wts * t * t).sum(1)
-    sv = (wts * v).sum(1)
-    stv = (wts * t * v).sum(1)
-    det = sw * stt - st * st
-    with np.errstate(all="ignore"):
-        c1 = (sw * stv - st * sv) / det
-        c0 = (sv - c1 * st) / sw
+    c0, _, sw, _ = _window_fit(along, across, line, offs)
     res = np.abs(across - c0)
     return np.where((sw >= 3) & np.isfinite(res), res, 0.0)
-
 
 
 def _end_fit(along: np.ndarray, across: np.ndarray, idx: np.ndarray, step: int, k: int
@@ -231,30 +287,10 @@ def neighbour_fit(along: np.ndarray, across: np.ndarray, line: np.ndarray, use: 
     neighbours exist, on both sides of the point (an interpolation, not an extrapolation).
     Arrays (M,) ordered by chain as returned by :func:`trace_lines`.
     """
-    n = len(along)
-    if n == 0:
+    if len(along) == 0:
         return np.zeros(0), np.zeros(0, bool)
-    i = np.arange(n)
-    counts = np.bincount(line)
-    stop = np.cumsum(counts)
-    first = (stop - counts)[line]
-    last = stop[line] - 1
     offs = np.r_[np.arange(-reach, 0), np.arange(1, reach + 1)]
-    j = i[:, None] + offs[None, :]
-    inside = (j >= first[:, None]) & (j <= last[:, None])
-    j = np.clip(j, 0, n - 1)
-    wts = (inside & use[j]).astype(np.float64)
-    t = along[j] - along[:, None]
-    v = across[j]
-    sw = wts.sum(1)
-    st = (wts * t).sum(1)
-    stt = (wts * t * t).sum(1)
-    sv = (wts * v).sum(1)
-    stv = (wts * t * v).sum(1)
-    det = sw * stt - st * st
-    with np.errstate(all="ignore"):
-        c1 = (sw * stv - st * sv) / det
-        c0 = (sv - c1 * st) / sw
+    c0, _, sw, wts = _window_fit(along, across, line, offs, use)
     before = (wts[:, :reach] > 0).any(1)
     after = (wts[:, reach:] > 0).any(1)
     ok = (sw >= 3) & ((before & after) | (not both_sides)) & np.isfinite(c0)
