@@ -13,6 +13,8 @@ import sys
 import time
 from pathlib import Path
 
+from .._parallel import in_background
+
 
 def register(sub) -> None:
     """Add the ``demo`` sub-command."""
@@ -28,7 +30,17 @@ def register(sub) -> None:
     p.add_argument("-o", "--output", default="demo", type=Path, help="output folder (demo/)")
     p.add_argument("--views", type=int, default=8, help="turntable views (8)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the simulator (0)")
+    p.add_argument("--width", type=int, default=None,
+                   help="camera width in px (default 3072; smaller is a faster, coarser demo)")
+    p.add_argument("--height", type=int, default=None, help="camera height in px (default 2304)")
     p.set_defaults(func=run)
+
+
+def _cli(argv: list[str]) -> int:
+    """``nurbscan ARGV`` (module level, so that a worker process can run it)."""
+    from . import main as cli_main
+
+    return cli_main(argv)
 
 
 def _available(module: str) -> bool:
@@ -54,33 +66,49 @@ def run(args: argparse.Namespace) -> int:
     if status:
         return status
 
+    size = []
+    for name in ("width", "height"):
+        if getattr(args, name, None) is not None:
+            size += [f"--{name}", str(getattr(args, name))]
     scan = out / "scan"
     calib = out / "calib.json"
     model = out / "model"
     plan = [
         ("nurbscan.simulate.scan", "simulate (issue 3)", "simulate the teapot scan",
          ["simulate", "teapot", "-o", str(scan), "--views", str(args.views),
-          "--seed", str(args.seed)]),
+          "--seed", str(args.seed)] + size),
         ("nurbscan.calibrate", "calibrate (issue 6)", "calibrate from the calibration images",
          ["calibrate", str(scan / "calibration"), "--pattern", str(scan / "pattern.json"),
           "-o", str(calib)]),
         ("nurbscan.reconstruct", "reconstruct (issue 7)", "reconstruct every view",
          ["reconstruct", str(scan), "--calib", str(calib), "-o", str(model)]),
+        ("nurbscan.export", "export (issue 8)", "export the model for VR (glb)",
+         ["export", str(model), "--format", "glb", "-o", str(out / "teapot.glb")]),
         ("nurbscan.evaluate", "evaluate (issue 7)", "evaluate against the truth (Table I)",
          ["evaluate", str(model), "--truth", str(scan / "truth"),
           "-o", str(out / "evaluation.json")]),
-        ("nurbscan.export", "export (issue 8)", "export the model for VR (glb)",
-         ["export", str(model), "--format", "glb", "-o", str(out / "teapot.glb")]),
         ("nurbscan.report", "report (issue 8)", "write the scan report",
-         ["report", str(model), "-o", str(out / "report.html")]),
+         ["report", str(model), "-o", str(out / "report.html"),
+          "--evaluation", str(out / "evaluation.json")]),
     ]
     missing = []
+    pending = None  # the export runs in a second process beside the evaluation and report
     for module, stage, title, argv in plan:
         if missing or not _available(module):
             missing.append(stage)
             continue
+        if argv[0] == "export":
+            step(title + " (in the background)")
+            pending = in_background(_cli, argv)
+            continue
         step(title)
         status = cli_main(argv)
+        if status:
+            if pending is not None:
+                pending()  # let the export finish (or fail) before the demo stops
+            return status
+    if pending is not None:
+        status = pending()
         if status:
             return status
     step("done")
