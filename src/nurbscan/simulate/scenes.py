@@ -68,6 +68,18 @@ def _dot(a, b):
     return np.einsum("...i,...i->...", a, b)
 
 
+def _cross(a, b):
+    """``np.cross`` of (..., 3) arrays, the same arithmetic without its axis handling (twice
+    as fast on the Newton iterations' small arrays)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a1 * b2 - a2 * b1
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
+    return out
+
+
 def _unit(a):
     n = np.linalg.norm(a, axis=-1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -131,15 +143,21 @@ def bernstein3(t, order=0):
         ``d^order/dt^order B_{i,3}(t)``, ``B_{i,3}(t) = C(3, i) t^i (1 - t)^(3 - i)``
         (Piegl and Tiller, The NURBS Book, eq. 1.8 and A1.3).
     """
+    if order not in (0, 1, 2):
+        raise ValueError(f"order must be 0, 1 or 2, got {order}")
     t = np.asarray(t, dtype=float)
     s = 1.0 - t
+    out = np.empty(t.shape + (4,))  # filled column by column: faster than np.stack
     if order == 0:
-        return np.stack([s * s * s, 3 * t * s * s, 3 * t * t * s, t * t * t], axis=-1)
-    if order == 1:
-        return np.stack([-3 * s * s, 3 * s * (1 - 3 * t), 3 * t * (2 - 3 * t), 3 * t * t], axis=-1)
-    if order == 2:
-        return np.stack([6 * s, 18 * t - 12, 6 - 18 * t, 6 * t], axis=-1)
-    raise ValueError(f"order must be 0, 1 or 2, got {order}")
+        out[..., 0], out[..., 1] = s * s * s, 3 * t * s * s
+        out[..., 2], out[..., 3] = 3 * t * t * s, t * t * t
+    elif order == 1:
+        out[..., 0], out[..., 1] = -3 * s * s, 3 * s * (1 - 3 * t)
+        out[..., 2], out[..., 3] = 3 * t * (2 - 3 * t), 3 * t * t
+    else:
+        out[..., 0], out[..., 1] = 6 * s, 18 * t - 12
+        out[..., 2], out[..., 3] = 6 - 18 * t, 6 * t
+    return out
 
 
 def load_bpt(path=None, scale=1.0):
@@ -302,7 +320,7 @@ class Scene:
         """Unit outward normals of surface ``k`` from its derivatives at ``uv`` (see
         :meth:`surface_normals` for the degenerate points)."""
         u0, u1, v0, v1 = self._domain(k)
-        c = np.cross(su, sv)
+        c = _cross(su, sv)
         size = _dot(su, su) + _dot(sv, sv)
         bad = ~(np.linalg.norm(c, axis=1) > 1e-10 * np.maximum(size, 1e-300))
         bad |= ~np.isfinite(c).all(axis=1)
@@ -314,7 +332,7 @@ class Scene:
             step = 1e-7 if _ == 0 else 1e-7 * 100.0**_
             w = uv[bad] + step * span * np.sign(centre - uv[bad])
             _, su2, sv2 = self._eval(k, w[:, 0], w[:, 1], 1)
-            c2 = np.cross(su2, sv2)
+            c2 = _cross(su2, sv2)
             c[bad] = c2
             size2 = _dot(su2, su2) + _dot(sv2, sv2)
             still = ~(np.linalg.norm(c2, axis=1) > 1e-10 * np.maximum(size2, 1e-300))
@@ -361,7 +379,7 @@ class Scene:
             if self._orientation(k) < 0:
                 f = f[:, ::-1]
             tri = p[f]
-            area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+            area = np.linalg.norm(_cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
             f = f[area > 1e-12 * max(np.ptp(p, axis=0).max(), 1.0) ** 2]
             verts.append(p)
             faces.append(f + base)
@@ -663,12 +681,12 @@ class Scene:
             s, su, sv = self._eval(k, ua[:, 0], ua[:, 1], 1)
             f = s - oa - ta[:, None] * da
             c = -da
-            sxc = np.cross(sv, c)
+            sxc = _cross(sv, c)
             det = _dot(su, sxc)
             with np.errstate(divide="ignore", invalid="ignore"):
                 du = -_dot(f, sxc) / det
-                dv = -_dot(su, np.cross(f, c)) / det
-                dt = -_dot(su, np.cross(sv, f)) / det
+                dv = -_dot(su, _cross(f, c)) / det
+                dt = -_dot(su, _cross(sv, f)) / det
             sing = ~np.isfinite(du) | ~np.isfinite(dv) | ~np.isfinite(dt)
             du[sing], dv[sing], dt[sing] = 0.0, 0.0, 0.0
             step = np.column_stack([du, dv])
@@ -1531,7 +1549,7 @@ class Plane(Scene):
         nrm = np.array(self.normal)
         ref = np.array([1.0, 0, 0]) if abs(nrm[0]) < 0.9 else np.array([0, 1.0, 0])
         e1 = _unit(ref - _dot(ref, nrm) * nrm)
-        return e1, np.cross(nrm, e1)
+        return e1, _cross(nrm, e1)
 
     @property
     def _half(self):
