@@ -218,20 +218,24 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     if families:
         # the gradient's components along the two families' local normals
         tv, th = family_normals(gx, gy, strong)
-        tile_maps = [cv2.resize(f(2 * t).astype(np.float32), (w, h),
-                                interpolation=cv2.INTER_LINEAR)
-                     for t in (tv, th) for f in (np.cos, np.sin)]
         sy, sx = np.nonzero(strong)
+        gxs, gys = gx[sy, sx], gy[sy, sx]
+        # |g . n|^2 = (|g|^2 + (gx^2 - gy^2) cos 2t + 2 gx gy sin 2t) / 2 for n at angle t,
+        # with the doubled-angle vectors interpolated bilinearly between the tiles
+        a, b, c = gxs * gxs + gys * gys, gxs * gxs - gys * gys, 2.0 * gxs * gys
+        del gxs, gys
         comp = []
-        for c2, s2 in (tile_maps[:2], tile_maps[2:]):
-            ang = 0.5 * np.arctan2(s2[sy, sx], c2[sy, sx])
-            comp.append(np.abs(gx[sy, sx] * np.cos(ang) + gy[sy, sx] * np.sin(ang)))
-        del tile_maps
+        for t in (tv, th):
+            c2, s2 = (cv2.resize(f(2 * t).astype(np.float32), (w, h),
+                                 interpolation=cv2.INTER_LINEAR)[sy, sx] for f in (np.cos, np.sin))
+            r = np.hypot(c2, s2)
+            comp.append(a + (b * c2 + c * s2) / np.where(r > 0, r, 1.0))
         vmask = np.zeros((h, w), bool)
         hmask = np.zeros((h, w), bool)
-        vmask[sy, sx] = comp[0] >= dominance * comp[1]
-        hmask[sy, sx] = comp[1] > dominance * comp[0]
-        del sy, sx, comp
+        d2 = dominance * dominance
+        vmask[sy, sx] = comp[0] >= d2 * comp[1]
+        hmask[sy, sx] = comp[1] > d2 * comp[0]
+        del sy, sx, comp, a, b, c
     else:
         vmask = strong & (ax >= dominance * ay)
         hmask = strong & (ay > dominance * ax)
