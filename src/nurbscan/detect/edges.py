@@ -222,20 +222,20 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         gxs, gys = gx[sy, sx], gy[sy, sx]
         # |g . n|^2 = (|g|^2 + (gx^2 - gy^2) cos 2t + 2 gx gy sin 2t) / 2 for n at angle t,
         # with the doubled-angle vectors interpolated bilinearly between the tiles
-        a, b, c = gxs * gxs + gys * gys, gxs * gxs - gys * gys, 2.0 * gxs * gys
+        mag2, diff2, prod2 = gxs * gxs + gys * gys, gxs * gxs - gys * gys, 2.0 * gxs * gys
         del gxs, gys
         comp = []
         for t in (tv, th):
             c2, s2 = (cv2.resize(f(2 * t).astype(np.float32), (w, h),
                                  interpolation=cv2.INTER_LINEAR)[sy, sx] for f in (np.cos, np.sin))
             r = np.hypot(c2, s2)
-            comp.append(a + (b * c2 + c * s2) / np.where(r > 0, r, 1.0))
+            comp.append(mag2 + (diff2 * c2 + prod2 * s2) / np.where(r > 0, r, 1.0))
         vmask = np.zeros((h, w), bool)
         hmask = np.zeros((h, w), bool)
         d2 = dominance * dominance
         vmask[sy, sx] = comp[0] >= d2 * comp[1]
         hmask[sy, sx] = comp[1] > d2 * comp[0]
-        del sy, sx, comp, a, b, c
+        del sy, sx, comp, mag2, diff2, prod2
     else:
         vmask = strong & (ax >= dominance * ay)
         hmask = strong & (ay > dominance * ax)
