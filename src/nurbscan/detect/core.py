@@ -22,7 +22,14 @@ import numpy as np
 from ..errors import NurbscanError
 from .decode import band_crossings, bilinear, classify_colours, line_labels, window_votes
 from .edges import detect_edge_points, refine_by_channels
-from .lines import chain_slope, join_collinear, local_residual, neighbour_fit, trace_lines
+from .lines import (
+    chain_slope,
+    fit_lines,
+    join_collinear,
+    local_residual,
+    neighbour_fit,
+    trace_lines,
+)
 from .normalize import normalize
 from .result import DetectionResult
 
@@ -66,20 +73,6 @@ def as_float_planes(image, what: str = "image", gamma: float = 1.0) -> tuple:
         lut = ((np.arange(256, dtype=np.float64) / 255) ** gamma).astype(np.float32)
         return tuple(cv2.LUT(c, lut) for c in cv2.split(np.ascontiguousarray(a[:, :, :3])))
     return tuple(cv2.split(as_float_image(image, what, gamma)))
-
-
-def _fit_line(t: np.ndarray, v: np.ndarray, wts: np.ndarray) -> np.ndarray:
-    """Weighted least-squares v = c0 + c1 t per row of (G, K) arrays; returns (G, 2)."""
-    sw = wts.sum(1)
-    st = (wts * t).sum(1)
-    stt = (wts * t * t).sum(1)
-    sv = (wts * v).sum(1)
-    stv = (wts * t * v).sum(1)
-    det = sw * stt - st * st
-    with np.errstate(all="ignore"):
-        c1 = (sw * stv - st * sv) / det
-        c0 = (sv - c1 * st) / sw
-    return np.c_[c0, c1]
 
 
 def grid_intersections(x, y, line, direction, band, edge, coord, radius: float, k: int = 8):
@@ -133,7 +126,7 @@ def grid_intersections(x, y, line, direction, band, edge, coord, radius: float, 
         dd = dd.reshape(len(cx), kk)
         ii = sel[np.minimum(ii.reshape(len(cx), kk), len(sel) - 1)]
         wts = (np.isfinite(dd) & (dd < 4 * radius)).astype(np.float64)
-        fit = _fit_line(along[ii] - centre[:, None], across[ii], wts)
+        fit = np.c_[fit_lines(along[ii] - centre[:, None], across[ii], wts)[:2]]
         out.append((fit, centre, dd, wts, ii))
     (fv, y0, dv, wv, iv), (fh, x0, dh, wh, ih) = out
     # x = fv0 + fv1 (y - y0); y = fh0 + fh1 (x - x0)
@@ -1036,23 +1029,22 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         inv = nrm.inverse if len(nrm.inverse) == 3 else nrm.inverse * 3
         chn = [c * i for c, i in zip(nrm.channels, inv, strict=True)]
         colour = np.asarray(pattern.rgb)[seq[lab[line]]] > 127
+        vk = cls[keep] < 2
         normal = None
         if fine:
             # a point is judged clean along its chain's normal: (1, -slope) for vertical
             # edges (x = c + slope y), (-slope, 1) for horizontal ones, so that edges tilted
             # past 14 degrees are re-measured too (narrow bands keep the x / y rule: there
             # the extra points cost accuracy, 640 x 480 calibration views)
-            vk0 = cls[keep] < 2
-            slope = chain_slope(np.where(vk0, py, px), np.where(vk0, px, py), line)
+            slope = chain_slope(np.where(vk, py, px), np.where(vk, px, py), line)
             nn = np.hypot(1.0, slope)
-            normal = np.where(vk0[:, None], np.c_[1.0 / nn, -slope / nn],
+            normal = np.where(vk[:, None], np.c_[1.0 / nn, -slope / nn],
                               np.c_[-slope / nn, 1.0 / nn])
         px, py, done = refine_by_channels(chn, ix[keep], iy[keep], cls[keep], colour, px, py,
                                           sigma, sigma_along, normal=normal)
         del chn
         # points with no clean channel (their crossing band shares the band's channels) are
         # placed on the straight line through their re-measured chain neighbours
-        vk = cls[keep] < 2
         c0, okf = neighbour_fit(np.where(vk, py, px), np.where(vk, px, py), line, done,
                                both_sides=False)
         fix = okf & ~done

@@ -11,9 +11,8 @@ row has a junction or a spur there: those pixels are removed and the components 
 again, which splits the chain at the junction. (Horizontal edges: the same with columns and
 ``-g_x / g_y``.) Chains are therefore split at junctions, at gaps (a missing pixel breaks the
 links) and at depth discontinuities (a jump of more than one pixel across the edge between
-neighbouring rows). Each chain is ordered along
-its run (by row for vertical edges, by column for horizontal ones); chains shorter than
-``min_length`` points are dropped.
+neighbouring rows). Each chain is ordered along its run (by row for vertical edges, by column
+for horizontal ones); chains shorter than ``min_length`` points are dropped.
 """
 
 from __future__ import annotations
@@ -24,26 +23,26 @@ from .edges import EdgePoints
 
 
 def _links(run: np.ndarray, acr: np.ndarray, slope: np.ndarray, cls: np.ndarray,
-           size: int, max_slope: float) -> tuple[np.ndarray, np.ndarray]:
+           size: int) -> tuple[np.ndarray, np.ndarray]:
     """Pairs (p, q) of points of one class in neighbouring runs r, r + 1 that continue each
     other: ``|acr_q - acr_p - round((slope_p + slope_q) / 2)| <= 1`` (pixel units)."""
     n = len(run)
     if n == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    key = (cls.astype(np.int64) * size + run) * size + acr
+    base = cls.astype(np.int64) * size + run
+    key = base * size + acr
     o = np.argsort(key)
     skey = key[o]
-    step = np.rint(np.clip(slope, -max_slope, max_slope)).astype(np.int64)
+    step = np.rint(slope).astype(np.int64)
     src, dst = [], []
     for k in range(-2, 3):
-        q = (cls.astype(np.int64) * size + run + 1) * size + acr + step + k
+        q = (base + 1) * size + acr + step + k
         j = np.minimum(np.searchsorted(skey, q), n - 1)
         hit = skey[j] == q
         src.append(np.nonzero(hit)[0])
         dst.append(o[j[hit]])
     p, q = np.concatenate(src), np.concatenate(dst)
-    mean = np.rint(0.5 * (np.clip(slope[p], -max_slope, max_slope)
-                          + np.clip(slope[q], -max_slope, max_slope))).astype(np.int64)
+    mean = np.rint(0.5 * (slope[p] + slope[q])).astype(np.int64)
     ok = np.abs(acr[q] - acr[p] - mean) <= 1
     return p[ok], q[ok]
 
@@ -82,10 +81,10 @@ def trace_lines(pts: EdgePoints, shape: tuple[int, int], min_length: int = 4,
     acr = np.where(vert, pts.ix, pts.iy).astype(np.int64)
     gx, gy = pts.gx.astype(np.float64), pts.gy.astype(np.float64)
     with np.errstate(all="ignore"):
-        slope = np.nan_to_num(np.where(vert, -gy / gx, -gx / gy), posinf=max_slope,
-                              neginf=-max_slope)
+        slope = np.clip(np.nan_to_num(np.where(vert, -gy / gx, -gx / gy), posinf=max_slope,
+                                      neginf=-max_slope), -max_slope, max_slope)
     size = int(max(shape)) + 8
-    p, q = _links(run, acr, slope, pts.cls, size, max_slope)
+    p, q = _links(run, acr, slope, pts.cls, size)
 
     def components(p, q, keep):
         m = keep[p] & keep[q]
@@ -110,11 +109,29 @@ def trace_lines(pts: EdgePoints, shape: tuple[int, int], min_length: int = 4,
     return idx, line.astype(np.int64)
 
 
+def fit_lines(t: np.ndarray, v: np.ndarray, wts: np.ndarray):
+    """Weighted least-squares lines ``v = c0 + c1 t``, one per row of (G, K) arrays.
+
+    Returns c0, c1 (G,) and the weight sums (G,); c0, c1 are finite only where at least two
+    distinct ``t`` carry weight.
+    """
+    sw = wts.sum(1)
+    st = (wts * t).sum(1)
+    stt = (wts * t * t).sum(1)
+    sv = (wts * v).sum(1)
+    stv = (wts * t * v).sum(1)
+    det = sw * stt - st * st
+    with np.errstate(all="ignore"):
+        c1 = (sw * stv - st * sv) / det
+        c0 = (sv - c1 * st) / sw
+    return c0, c1, sw
+
+
 def _window_fit(along: np.ndarray, across: np.ndarray, line: np.ndarray, offs: np.ndarray,
                 use: np.ndarray | None = None):
     """Least-squares lines ``across = c0 + c1 (along - along_i)`` through the points i + offs
-    of each point's chain (those with ``use``). Returns c0, c1 (M,), the number of points
-    sw (M,) and the weights (M, len(offs)); c0, c1 are NaN-free only where sw >= 2."""
+    of each point's chain (those with ``use``) (:func:`fit_lines`). Returns c0, c1 (M,), the
+    number of points sw (M,) and the weights (M, len(offs))."""
     n = len(along)
     i = np.arange(n)
     counts = np.bincount(line)
@@ -125,17 +142,7 @@ def _window_fit(along: np.ndarray, across: np.ndarray, line: np.ndarray, offs: n
     inside = (j >= first[:, None]) & (j <= last[:, None])
     j = np.clip(j, 0, n - 1)
     wts = (inside if use is None else inside & use[j]).astype(np.float64)
-    t = along[j] - along[:, None]
-    v = across[j]
-    sw = wts.sum(1)
-    st = (wts * t).sum(1)
-    stt = (wts * t * t).sum(1)
-    sv = (wts * v).sum(1)
-    stv = (wts * t * v).sum(1)
-    det = sw * stt - st * st
-    with np.errstate(all="ignore"):
-        c1 = (sw * stv - st * sv) / det
-        c0 = (sv - c1 * st) / sw
+    c0, c1, sw = fit_lines(along[j] - along[:, None], across[j], wts)
     return c0, c1, sw, wts
 
 
