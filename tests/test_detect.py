@@ -528,6 +528,31 @@ def test_propagate_collinear_unknown_colour():
         [2, 2, 2, -1]
 
 
+def test_pooled_labels_decide_the_pieces_of_one_edge_together():
+    """Three pieces of one edge, each with votes from one window position only, are labelled
+    by their pooled votes (three positions); a piece whose colour contradicts the band is
+    not; two joined pieces voting for different bands stay unlabelled; a labelled piece
+    keeps its label."""
+    from nurbscan.detect.core import pooled_labels
+
+    seq = np.array([0, 1, 2, 3, 4, 0, 1])
+    label = np.array([-1, -1, -1, -1, -1, -1, 5])
+    src, dst = np.array([0, 1, 2, 4]), np.array([1, 2, 3, 5])
+    # pieces 0, 1, 2 (and 3, no votes) vote for band 2 from window positions 0, 1, 2;
+    # pieces 4 and 5 vote 4 and 3; piece 6 (labelled 5) votes 1
+    vline = np.repeat([0, 1, 2, 4, 5, 6], 4)
+    vband = np.repeat([2, 2, 2, 4, 3, 1], 4)
+    vpos = np.repeat([0, 1, 2, 0, 1, 2], 4)
+    lcode = np.array([2, 2, 2, 3, 4, 3, 0])
+    kw = dict(min_votes=3, min_agreement=0.9, min_positions=3)
+    out = pooled_labels(label, src, dst, vline, vband, vpos, lcode, seq, **kw)
+    assert out.tolist() == [2, 2, 2, -1, -1, -1, 5]
+    # alone (no joins) no piece has three positions
+    none = np.zeros(0, np.int64)
+    assert (pooled_labels(label, none, none, vline, vband, vpos, lcode, seq, **kw)[:6]
+            == -1).all()
+
+
 def test_chain_end_residual_flags_disturbed_ends():
     """A chain's end point is measured against the straight line through its next points, across
     the edge; interior points and short chains get 0."""

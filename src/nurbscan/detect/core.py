@@ -18,6 +18,8 @@ import warnings as _warnings
 
 import cv2
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from ..errors import NurbscanError
 from .decode import band_crossings, bilinear, classify_colours, line_labels, window_votes
@@ -359,6 +361,37 @@ def propagate_pairs(label, lr, lf, lcode, seq, min_votes: int = 3,
     return _assign_votes(label, dst[ok], src[ok], lcode, seq, min_votes, min_agreement)
 
 
+
+
+
+def pooled_labels(label, src, dst, vote_line, vote_band, vote_pos, lcode, seq, min_votes: int,
+                  min_agreement: float, min_positions: int) -> np.ndarray:
+    """Label unlabelled chains by the pooled votes of the edge they are pieces of.
+
+    Bands of the other direction cut an edge into chain pieces (``src -> dst`` (J,), the joins
+    of :func:`~nurbscan.detect.lines.join_collinear`); each piece alone may hold too few
+    window votes, from too few window positions, to be labelled (the teapot's lid, where the
+    tilted vertical bands cut every horizontal edge into cell-long pieces). The votes
+    (``vote_line``, ``vote_band``, ``vote_pos``) of all pieces of one joined edge are pooled
+    and decided like a line's (:func:`~nurbscan.detect.decode.line_labels`); an unlabelled
+    piece takes the edge's band when its own colour code ``lcode`` (L,) is the pattern's
+    colour of that band. A wrong join mixes two edges' votes, which then fail the agreement
+    test: it leaves the pieces unlabelled rather than mislabelled. Returns labels (L,).
+    """
+    nl = len(label)
+    graph = coo_matrix((np.ones(len(src)), (src, dst)), shape=(nl, nl))
+    ncomp, comp = connected_components(graph, directed=False)
+    clab, _, _ = line_labels(comp[vote_line], None, vote_band, ncomp, min_votes=min_votes,
+                             min_agreement=min_agreement, direct=True, vote_pos=vote_pos,
+                             min_positions=min_positions)
+    new = clab[comp]
+    ok = (label < 0) & (new >= 0)
+    ok[ok] &= lcode[ok] == seq[new[ok]]
+    out = label.copy()
+    out[ok] = new[ok]
+    return out
+
+
 def propagate_collinear(label, src, dst, lcode, seq, unknown: bool = False) -> np.ndarray:
     """Give an unlabelled chain the label of the chain it continues (or that continues it).
 
@@ -665,7 +698,8 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                 keep_unsupported: bool = False, interpolation_rounds: int = 3,
                 interpolation_span: float = 2.2, interpolation_tol: float = 0.1,
                 require_colour: bool = True, collinear_rounds: int = 5,
-                collinear_unknown: bool = True, families: bool = True) -> DetectionResult:
+                collinear_unknown: bool = True, families: bool = True,
+                pool_gap: float = 2.0, pool_tol: float = 2.0) -> DetectionResult:
     """Find, trace and decode the grid's edge lines in one photograph.
 
     Parameters
@@ -757,10 +791,11 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         labelling).
     min_width : float
         (This and ``keep_unpaired``, ``keep_partner``, ``min_row_support``,
-        ``max_row_residual``, ``keep_unsupported``, ``interpolation_rounds`` and
-        ``collinear_rounds`` apply where the bands are resolved, at least ``FINE_BAND_PX`` =
-        4 px wide; narrower bands use the plain rules: no unpaired points, no width, partner
-        or row checks, no labels by interpolation or unknown colours.)
+        ``max_row_residual``, ``keep_unsupported``, ``interpolation_rounds``,
+        ``collinear_rounds`` and ``pool_gap`` apply where the bands are resolved, at least
+        ``FINE_BAND_PX`` = 4 px wide; narrower bands use the plain rules: no unpaired points,
+        no width, partner or row checks, no labels by interpolation, unknown colours or
+        pooled votes.)
         Keep the points of band crossings at least this many ``sigma`` wide only: the edges
         of narrower (squeezed) bands are biased outwards (7.1 MP teapot, sigma 1.46 px: RMS
         0.16 px for bands 4-5 px wide, 0.085 px at 5-6 px, 0.05 px above 6 px); 0 keeps all.
@@ -799,6 +834,18 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     collinear_unknown : bool
         In those rounds, a piece of unknown colour also takes the label of the piece it
         continues (a contradicting colour still stops it).
+    pool_gap, pool_tol : float
+        Pool the window votes of the pieces of one edge before they are decided
+        (:func:`pooled_labels`): pieces are joined across gaps up to ``pool_gap`` times
+        ``join_gap`` whose end fits predict each other within ``pool_tol`` camera px (looser
+        than the joins that carry labels: a wrong join here only mixes votes, which then
+        disagree). ``pool_gap=0`` disables. On the teapot's lid the tilted vertical bands cut
+        every horizontal edge into cell-long pieces, none with votes from three window
+        positions. 7.1 MP teapot views 0-7 at 1x noise: coverage 0.6733 -> 0.6848, RMS 0.0419
+        -> 0.0435 px (most of it one piece of an occluding contour in view 1, right label,
+        2.5 px off), labels 99.998 %, no wrong line; demo Gordon coverage 53.2 -> 54.8 %.
+        Only where the bands are resolved (``FINE_BAND_PX``): on 3 px bands the loose joins
+        link neighbouring edges and wrong labels reach the calibration.
     families : bool
         Tell vertical-band from horizontal-band edge pixels by the two families' local
         directions (:func:`~nurbscan.detect.edges.family_normals`) instead of by ``|g_x|``
@@ -858,7 +905,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     if not fine:
         keep_unpaired, min_width, keep_partner = False, 0.0, False
         min_row_support, max_row_residual, keep_unsupported = 0.0, 0.0, True
-        interpolation_rounds, collinear_rounds = 0, 0
+        interpolation_rounds, collinear_rounds, pool_gap = 0, 0, 0.0
     pts = detect_edge_points(sig, sigma=sigma, threshold=threshold, valid=nrm.valid,
                              sigma_along=sigma_along, dominance=dominance,
                              families=families and fine)
@@ -955,6 +1002,12 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                        "colour windows agree with their neighbours)")
     seq = np.asarray(pattern.sequence)
     lcode_all = np.max(np.stack([q[6] for q in props]), axis=0)
+    if pool_gap > 0 and join_gap > 0 and len(line):
+        psrc, pdst = join_collinear(px, py, cls, line, max_gap=pool_gap * join_gap,
+                                    tol=pool_tol, pairs_only=True)
+        label = pooled_labels(label, psrc, pdst, line[np.concatenate(vp)], np.concatenate(vi),
+                              np.concatenate(vj), lcode_all, seq, min_votes, min_agreement,
+                              pattern.n)
     def propagate(label):
         for lr, lf, st, rw, ra, fa, lcode, name in props:
             label = propagate_labels(label, lr, lf, st, rw, ra, fa, lcode, seq,
