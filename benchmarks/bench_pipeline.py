@@ -38,6 +38,7 @@ import sys
 import tempfile
 import time
 import tracemalloc
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -133,6 +134,7 @@ def one_view(tmp: Path) -> tuple[dict, dict]:
     from nurbscan.detect import detect_grid
     from nurbscan.pattern import Pattern
     from nurbscan.reconstruct import Model, reconstruct_view
+    from nurbscan.reconstruct.light import other_coordinate
     from nurbscan.reconstruct.pipeline import add_view
     from nurbscan.simulate import RenderSettings, default_rig, make_scene, render_view, scale_camera
 
@@ -158,7 +160,9 @@ def one_view(tmp: Path) -> tuple[dict, dict]:
     tri, net = [], []
 
     def image_to_gordon():
-        r = reconstruct_view(detect_grid(view.grid, pattern, view.white), rig, pattern)
+        r = reconstruct_view(detect_grid(view.grid, pattern, view.white,
+                                         epipolar=partial(other_coordinate, rig)),
+                             rig, pattern)
         tri.append(r.times["triangulate_s"])
         net.append(r.times["network_s"])
         return r
@@ -191,6 +195,7 @@ def size_scaling(reuse: dict) -> dict:
     """Simulate / detect / image-to-Gordon seconds at each image size, and the fitted slopes."""
     from nurbscan.detect import detect_grid
     from nurbscan.reconstruct import reconstruct_view
+    from nurbscan.reconstruct.light import other_coordinate
     from nurbscan.simulate import RenderSettings, default_rig, render_view, scale_camera
 
     scene, pattern, angle = reuse["scene"], reuse["pattern"], reuse["angle"]
@@ -206,7 +211,8 @@ def size_scaling(reuse: dict) -> dict:
             ts = time.perf_counter() - t
         td, _, _, _ = measure(lambda v=view: detect_grid(v.grid, pattern, v.white))
         ta, n, _, res = measure(lambda v=view, r=rig: reconstruct_view(
-            detect_grid(v.grid, pattern, v.white), r, pattern))
+            detect_grid(v.grid, pattern, v.white, epipolar=partial(other_coordinate, r)), r,
+            pattern))
         px.append(w * h)
         t_det.append(td)
         t_all.append(ta)
@@ -231,6 +237,7 @@ def view_scaling(reuse: dict) -> dict:
     """Detect + reconstruct + merge seconds for 1, 2, 4, 8 views at 1 MP, and the slope."""
     from nurbscan.detect import detect_grid
     from nurbscan.reconstruct import Model, reconstruct_view
+    from nurbscan.reconstruct.light import other_coordinate
     from nurbscan.reconstruct.pipeline import add_view
     from nurbscan.simulate import RenderSettings, default_rig, render_view, scale_camera
 
@@ -245,7 +252,8 @@ def view_scaling(reuse: dict) -> dict:
     def run(n: int):
         model = Model()
         for k in range(n):
-            res = reconstruct_view(detect_grid(views[k].grid, pattern, views[k].white), rig,
+            res = reconstruct_view(detect_grid(views[k].grid, pattern, views[k].white,
+                                               epipolar=partial(other_coordinate, rig)), rig,
                                    pattern)
             add_view(model, res, rig, k, angles[k])
         return model

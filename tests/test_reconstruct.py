@@ -7,6 +7,7 @@ import dataclasses
 import json
 import shutil
 
+import cv2
 import numpy as np
 import pytest
 
@@ -18,6 +19,7 @@ from nurbscan.reconstruct.light import (
     compare_light_surfaces,
     intersect_exact,
     intersect_surface,
+    other_coordinate,
     paper_light_surface,
 )
 from nurbscan.reconstruct.merge import curve_to_object, rig_to_object
@@ -52,6 +54,16 @@ def test_exact_light_surface_recovers_points(rig, direction, axis):
     assert np.max(np.linalg.norm(P - X, axis=1)) < 1e-6
     assert np.max(np.abs(other - pp[:, 1 - axis])) < 1e-6
     assert np.allclose(t, np.linalg.norm(X - o, axis=1), atol=1e-6)
+
+
+def test_other_coordinate_is_the_projection_of_the_point(rig):
+    """A camera pixel on the projector edge x = c (y = c) is given the projector y (x) of the
+    object point seen there. Oracle: the projector's Tsai projection of that point."""
+    X = _object_points(rig, 2000, seed=2)
+    pp = rig.projector.project(X)
+    px = rig.camera.project(X)
+    assert np.abs(other_coordinate(rig, px, "vertical", pp[:, 0]) - pp[:, 1]).max() < 1e-6
+    assert np.abs(other_coordinate(rig, px, "horizontal", pp[:, 1]) - pp[:, 0]).max() < 1e-6
 
 
 def test_exact_light_surface_near_principal_point(rig):
@@ -274,6 +286,36 @@ def small_scan(tmp_path_factory):
                   settings=RenderSettings(samples=2),
                   pattern=Pattern.create(1920, 1080, pitch=32, band=12))
     return out
+
+
+def test_detect_cli_with_the_rig(small_scan, tmp_path, capsys):
+    """`nurbscan detect --calib` decodes with the rig's epipolar constraint too: at least the
+    lines of a plain run, labels still right against the truth; an image of another size than
+    the rig's camera is a one-line error (exit 2) and writes nothing."""
+    from nurbscan.cli import main
+    from nurbscan.detect import evaluate_detection
+    from nurbscan.detect.result import load_detection
+    from nurbscan.pattern import load_pattern
+
+    views, pj = small_scan / "views", str(small_scan / "pattern.json")
+    rig = str(small_scan / "truth" / "rig.json")
+    args = ["detect", str(views / "view_00_grid.png"), "--pattern", pj, "--white",
+            str(views / "view_00_white.png")]
+    assert main(args + ["-o", str(tmp_path / "plain.json")]) == 0
+    assert main(args + ["--calib", rig, "-o", str(tmp_path / "rig.json")]) == 0
+    plain = load_detection(tmp_path / "plain.json")
+    withrig = load_detection(tmp_path / "rig.json")
+    assert withrig.nlines >= plain.nlines
+    ev = evaluate_detection(withrig, small_scan / "truth" / "view_00.npz", load_pattern(pj))
+    assert ev["label_rate"] >= 0.995, ev
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), cv2.imread(str(views / "view_00_grid.png"))[:100, :100])
+    capsys.readouterr()
+    assert main(["detect", str(small), "--pattern", pj, "--calib", rig, "-o",
+                 str(tmp_path / "x.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "does not match the camera" in err[0], err
+    assert not (tmp_path / "x.json").exists()
 
 
 def test_reconstruct_cli_without_truth_and_evaluate(small_scan, tmp_path, capsys):

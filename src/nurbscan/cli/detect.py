@@ -26,6 +26,9 @@ def register(sub) -> None:
                    help="encoding gamma of the images (default 2.2; 1 for linear data)")
     p.add_argument("--sigma", type=float, default=None,
                    help="edge filter scale across the edges, camera px (default: automatic)")
+    p.add_argument("--calib", help="the calibrated rig (calib.json): lines the colour windows "
+                   "leave undecoded are also decoded with its epipolar constraint, as "
+                   "nurbscan reconstruct does (the image must be of the rig's camera size)")
     p.set_defaults(func=run)
 
 
@@ -40,13 +43,27 @@ def run(args: argparse.Namespace) -> int:
 
     pattern = load_pattern(args.pattern)
     image = read_image(args.image, as_float=False)
+    epipolar = None
+    if args.calib:
+        from functools import partial
+
+        from ..camera import load_rig
+        from ..reconstruct.light import other_coordinate
+
+        rig = load_rig(args.calib)
+        size = (rig.camera.width, rig.camera.height)
+        if (image.shape[1], image.shape[0]) != size:
+            raise NurbscanError(f"{args.image}: size {image.shape[1]}x{image.shape[0]} does "
+                                f"not match the camera of {args.calib} ({size[0]}x{size[1]})")
+        epipolar = partial(other_coordinate, rig)
     white = read_image(args.white, as_float=False) if args.white else None
     if white is not None and white.shape != image.shape:
         raise NurbscanError(f"{args.white}: size {white.shape[1]}x{white.shape[0]} does not "
                             f"match {args.image} ({image.shape[1]}x{image.shape[0]})")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        result = detect_grid(image, pattern, white, gamma=args.gamma, sigma=args.sigma)
+        result = detect_grid(image, pattern, white, gamma=args.gamma, sigma=args.sigma,
+                             epipolar=epipolar)
     if result.nlines == 0:
         raise NurbscanError(f"{args.image}: " + (result.warnings[0] if result.warnings
                                                   else "no grid line decoded"))

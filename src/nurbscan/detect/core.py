@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from ..errors import NurbscanError
 from .decode import band_crossings, bilinear, classify_colours, line_labels, window_votes
@@ -515,6 +516,125 @@ def interpolate_labels(label, x, y, cls, line, lcode, pattern, span: float,
                          min_agreement, accept_unknown=not require_colour)
 
 
+def epipolar_coordinates(label, x, y, cls, line, pattern, other_coordinate, radius: float,
+                         k: int = 32, max_rms: float = 1.0) -> np.ndarray:
+    """Each edge point's own projector coordinate, predicted from the other family's labelled
+    points with a calibrated rig (epipolar decoding).
+
+    With the rig, a labelled vertical-band edge point (camera px, projector ``x = c``) is
+    triangulated on its edge's light surface, and the 3-D point's projector ``y`` is then
+    known at that camera pixel as well (``other_coordinate(pixels (N, 2), "vertical", c (N,))
+    -> y (N,)``, e.g. :func:`nurbscan.reconstruct.light.other_coordinate`); likewise ``x``
+    for horizontal-band edge points. A point of the other family then gets its own
+    coordinate (a horizontal-band edge point its projector ``y``) from the ``k`` nearest of
+    those within ``radius`` camera px, by a least-squares plane in camera (x, y); NaN where
+    there are fewer or where their RMS residual exceeds ``max_rms`` projector px (a depth
+    step among them). Arrays (N,) as in :func:`detect_grid`'s lines; returns (N,) projector
+    px.
+    """
+    lab = label[line]
+    d = cls // 2
+    known = lab >= 0
+    other = np.full(len(x), np.nan)
+    for dd, name in ((0, "vertical"), (1, "horizontal")):
+        m = np.nonzero(known & (d == dd))[0]
+        if len(m):
+            other[m] = other_coordinate(np.c_[x[m], y[m]], name,
+                                        pattern.edge_coordinate(name, lab[m], cls[m] % 2))
+    pred = np.full(len(x), np.nan)
+    for dd in (0, 1):
+        src = np.nonzero(known & (d == 1 - dd) & np.isfinite(other))[0]
+        dst = np.nonzero(d == dd)[0]
+        if len(src) < k or not len(dst):
+            continue
+        dist, j = cKDTree(np.c_[x[src], y[src]]).query(np.c_[x[dst], y[dst]], k=k,
+                                                       distance_upper_bound=radius)
+        full = np.isfinite(dist).all(1)
+        dst, j = dst[full], j[full]
+        if not len(dst):
+            continue
+        # plane v = v0 + g . (p - mean p) through the k neighbours (least squares); the
+        # gradient g only along the directions in which the neighbours spread by at least
+        # 1 px RMS (neighbours on one line do not tell how v changes across it: taken as 0)
+        xs, ys, V = x[src][j], y[src][j], other[src][j]
+        P = np.stack([xs - xs.mean(1, keepdims=True), ys - ys.mean(1, keepdims=True)], -1)
+        vm = V.mean(1)
+        C = np.einsum("nki,nkj->nij", P, P)
+        bvec = np.einsum("nki,nk->ni", P, V - vm[:, None])
+        val, vec = np.linalg.eigh(C)
+        coef = np.einsum("nji,nj->ni", vec, bvec) / np.maximum(val, 1e-12)
+        coef = np.where(val > k * 1.0, coef, 0.0)
+        g = np.einsum("nji,ni->nj", vec, coef)
+        rms = np.sqrt(np.mean((vm[:, None] + np.einsum("nki,ni->nk", P, g) - V) ** 2, axis=1))
+        q = np.c_[x[dst] - xs.mean(1), y[dst] - ys.mean(1)]
+        p = vm + np.einsum("ni,ni->n", q, g)
+        pred[dst] = np.where(rms <= max_rms, p, np.nan)
+    return pred
+
+
+def epipolar_labels(label, pred, cls, line, lcode, pattern, tol: float = 0.25,
+                    min_points: int = 6, min_votes: int = 3,
+                    min_agreement: float = 0.9) -> np.ndarray:
+    """Label unlabelled lines by the projector coordinates the rig predicts for their points.
+
+    ``pred`` (N,) is :func:`epipolar_coordinates`. Each point of an unlabelled line of at
+    least ``min_points`` points votes for the nearest pattern edge of its kind (rising /
+    falling) to its predicted coordinate, within ``tol`` pitches. A line takes the band that
+    ``min_votes`` of its votes, a share ``min_agreement`` of them, agree on, unless its own
+    colour code ``lcode`` (-1 unknown) contradicts the band's. Where the bands of the other
+    direction cut the edges into pieces too short for the colour windows (the teapot's lid
+    and bottom), the other family is mostly decoded, so the pieces are labelled here.
+    Returns labels (L,).
+    """
+    seq = np.asarray(pattern.sequence)
+    counts = np.bincount(line, minlength=len(label))
+    vl, vv = [], []
+    for dd in (0, 1):
+        dst = np.nonzero((label[line] < 0) & (cls // 2 == dd) & (counts[line] >= min_points)
+                         & np.isfinite(pred))[0]
+        edges = pattern.vertical_edges if dd == 0 else pattern.horizontal_edges
+        e = cls[dst] % 2
+        b = np.clip(np.round((pred[dst] - edges[0, e]) / pattern.pitch).astype(np.int64), 0,
+                    len(edges) - 1)
+        good = np.abs(pred[dst] - edges[b, e]) <= tol * pattern.pitch
+        vl.append(line[dst[good]])
+        vv.append(b[good])
+    return _assign_votes(label, np.concatenate(vl), np.concatenate(vv), lcode, seq, min_votes,
+                         min_agreement, accept_unknown=True)
+
+
+def epipolar_check(label, pred, cls, line, pattern, tol: float = 0.25,
+                   min_points: int = 3) -> np.ndarray:
+    """Unlabel lines that the rig's epipolar prediction contradicts.
+
+    A labelled line with at least ``min_points`` predicted points (``pred``,
+    :func:`epipolar_coordinates`) more than half of which lie farther than ``tol`` pitches
+    from its own edge coordinate is labelled wrongly, or is not one edge (a tracer chain that
+    crosses from one band's edge to the next): it is unlabelled. Returns labels (L,).
+    """
+    nl = len(label)
+    lab = label[line]
+    d = cls // 2
+    m = (lab >= 0) & np.isfinite(pred)
+    coord = np.full(len(line), np.nan)
+    for dd, name in ((0, "vertical"), (1, "horizontal")):
+        k = m & (d == dd)
+        coord[k] = pattern.edge_coordinate(name, lab[k], cls[k] % 2)
+    off = m & (np.abs(pred - coord) > tol * pattern.pitch)
+    n = np.bincount(line[m], minlength=nl)
+    bad = (n >= min_points) & (np.bincount(line[off], minlength=nl) > 0.5 * n)
+    return np.where(bad, -1, label)
+
+
+def _chains(x, y, direction, line):
+    """``along, across`` (M,) of chain points (y, x for vertical-band edges, ``direction`` 0;
+    x, y for horizontal ones) and the ``counts, first, stop`` (L,) of the chains."""
+    vert = direction == 0
+    counts = np.bincount(line)
+    stop = np.cumsum(counts)
+    return np.where(vert, y, x), np.where(vert, x, y), counts, stop - counts, stop
+
+
 def chain_end_residual(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.ndarray,
                        reach: int = 6) -> np.ndarray:
     """Distance (camera px) of each chain's first and last point from its chain's straight line.
@@ -529,16 +649,56 @@ def chain_end_residual(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line
     out = np.zeros(n)
     if n == 0:
         return out
-    vert = direction == 0
-    along = np.where(vert, y, x)
-    across = np.where(vert, x, y)
-    counts = np.bincount(line)
-    stop = np.cumsum(counts)
-    first = stop - counts
+    along, across, counts, first, stop = _chains(x, y, direction, line)
     ends = np.unique(np.r_[first[counts > 0], stop[counts > 0] - 1])
     c0, ok = neighbour_fit(along, across, line, np.ones(n, bool), reach=reach,
                            both_sides=False)
     out[ends] = np.where(ok[ends], np.abs(across[ends] - c0[ends]), 0.0)
+    return out
+
+
+def chain_tails(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.ndarray,
+                tol: float, tail: int = 8, reach: int = 10) -> np.ndarray:
+    """Points of each chain's two tails that veer off the chain's straight line (to drop).
+
+    Where a chain runs into a junction the tracer may follow a few pixels of another edge (a
+    crossing band's, an occluding contour's): a short tail, straight in itself, that the
+    end-point test (:func:`chain_end_residual`) cannot see because its neighbours are the
+    tail. Here the ``tail`` points at each end are compared with the straight line fitted
+    (least squares, :func:`~nurbscan.detect.lines.fit_lines`) to the up to ``reach`` points
+    before them, across the edge (x for vertical-band edges, ``direction`` 0); from the first
+    tail point farther than ``tol`` camera px out to the end, the points are flagged. Tails
+    are at most a third of their chain, and chains too short for four fitted points are left
+    alone. Arrays (M,) grouped by chain, ``line`` non-decreasing. Returns bool (M,), true for
+    the points to drop.
+    """
+    out = np.zeros(len(x), bool)
+    if len(x) == 0:
+        return out
+    along, across, counts, first, stop = _chains(x, y, direction, line)
+    k = np.minimum(tail, counts // 3)  # tail length per chain
+    nb = np.minimum(reach, counts - k)  # fitted points per chain
+    use = (k >= 1) & (nb >= 4)
+    at, ab = np.arange(tail), np.arange(reach)
+    for side in (1, -1):
+        # tail points ordered from the chain's interior out to its end
+        if side == 1:
+            ti = (stop - k)[:, None] + at[None, :]
+            bi = (stop - k - nb)[:, None] + ab[None, :]
+        else:
+            ti = (first + k - 1)[:, None] - at[None, :]
+            bi = (first + k)[:, None] + ab[None, :]
+        tv = use[:, None] & (at[None, :] < k[:, None])
+        bv = use[:, None] & (ab[None, :] < nb[:, None])
+        ti, bi = np.where(tv, ti, 0), np.where(bv, bi, 0)
+        ta = along[bi]
+        t0 = ta[:, :1]
+        c0, c1, _ = fit_lines(ta - t0, across[bi], bv.astype(np.float64))
+        with np.errstate(invalid="ignore"):
+            res = np.abs(across[ti] - (c0[:, None] + c1[:, None] * (along[ti] - t0)))
+            bad = tv & np.isfinite(res) & (res > tol)
+        bad = np.maximum.accumulate(bad, axis=1) & tv
+        out[ti[bad]] = True
     return out
 
 
@@ -699,7 +859,9 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                 interpolation_span: float = 2.2, interpolation_tol: float = 0.1,
                 require_colour: bool = True, collinear_rounds: int = 5,
                 collinear_unknown: bool = True, families: bool = True,
-                pool_gap: float = 2.0, pool_tol: float = 2.0) -> DetectionResult:
+                pool_gap: float = 2.0, pool_tol: float = 2.0, epipolar=None,
+                epipolar_radius: float = 2.0, epipolar_rounds: int = 2,
+                tail_residual: float | None = None) -> DetectionResult:
     """Find, trace and decode the grid's edge lines in one photograph.
 
     Parameters
@@ -846,6 +1008,26 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         2.5 px off), labels 99.998 %, no wrong line; demo Gordon coverage 53.2 -> 54.8 %.
         Only where the bands are resolved (``FINE_BAND_PX``): on 3 px bands the loose joins
         link neighbouring edges and wrong labels reach the calibration.
+    epipolar : callable, optional
+        ``other_coordinate(pixels (N, 2), direction, coord (N,)) -> (N,)``: the other
+        projector coordinate at camera pixels on projector edges, from a calibrated rig
+        (:func:`nurbscan.reconstruct.light.other_coordinate`; ``nurbscan reconstruct`` passes
+        it). With it, where the bands are resolved, each round (``epipolar_rounds``) predicts
+        every edge point's projector coordinate from the other family's decoded points within
+        ``epipolar_radius`` pitches (:func:`epipolar_coordinates`), labels the lines the
+        colour windows left unlabelled (:func:`epipolar_labels`) and unlabels the lines the
+        prediction contradicts (:func:`epipolar_check`). Demo teapot (7.1 MP, 8 views, rig
+        calibrated from the images, /tmp scan of session 7): Gordon coverage 54.8 -> 61.1 %,
+        Table I unchanged (Gordon mean 0.0044 mm, max 0.018 mm); the detection figures of
+        views 0-7 at 1x noise: coverage 0.685 -> 0.707, RMS 0.044 -> 0.060 px (the pieces it
+        labels are the less exact ones: squeezed bands, grazing views), labels 99.990 %, 2
+        wrong lines over 20 px (0 without), which the network's crossing test keeps out of
+        the surfaces.
+    tail_residual : float, optional
+        Drop the tail points of chains that veer more than this (camera px) off the straight
+        line through the chain before them (:func:`chain_tails`); default 1.0 with
+        ``epipolar`` (the pieces it labels include tracer tails a few px off), else 0 (off:
+        7.1 MP teapot views 0-7 without ``epipolar``: coverage -0.5 %, RMS -0.001 px).
     families : bool
         Tell vertical-band from horizontal-band edge pixels by the two families' local
         directions (:func:`~nurbscan.detect.edges.family_normals`) instead of by ``|g_x|``
@@ -865,6 +1047,8 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     """
     if not gamma > 0:
         raise NurbscanError(f"gamma={gamma!r}: must be positive")
+    if tail_residual is None:
+        tail_residual = 1.0 if epipolar is not None else 0.0
     if not 0 < dominance <= 1 or not corner_keep >= 0:
         raise NurbscanError(f"dominance={dominance!r}, corner_keep={corner_keep!r}: need "
                             "0 < dominance <= 1 and corner_keep >= 0")
@@ -1038,6 +1222,17 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                                            require_colour=require_colour, rows=rows),
             label, interpolation_rounds)
         label = check_all_adjacency(label)
+    if epipolar is not None and fine and epipolar_rounds:
+        radius = epipolar_radius * band_px_est * pattern.pitch / pattern.band
+
+        def epipolar_round(lab):
+            pred = epipolar_coordinates(lab, px, py, cls, line, pattern, epipolar, radius)
+            lab = epipolar_labels(lab, pred, cls, line, lcode_all, pattern,
+                                  min_votes=min_votes, min_agreement=min_agreement)
+            return epipolar_check(lab, pred, cls, line, pattern)
+
+        label = _until_stable(epipolar_round, label, epipolar_rounds)
+        label = check_all_adjacency(label)
     ldir = np.zeros(nlines, np.int64)
     if len(line):
         ldir[line] = cls // 2
@@ -1122,8 +1317,12 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
             pk = partner[kidx]
             kp &= (pk < 0) | kept[np.maximum(pk, 0)]
         px, py, line, strength = px[kp], py[kp], line[kp], strength[kp]
-    if end_residual > 0 and len(px):
-        ke = chain_end_residual(px, py, ldir[line], line) <= end_residual
+    if (end_residual > 0 or tail_residual > 0) and len(px):
+        ke = np.ones(len(px), bool)
+        if end_residual > 0:
+            ke &= chain_end_residual(px, py, ldir[line], line) <= end_residual
+        if tail_residual > 0:
+            ke &= ~chain_tails(px, py, ldir[line], line, tail_residual)
         px, py, line, strength = px[ke], py[ke], line[ke], strength[ke]
     nl = len(lab)
     counts = np.bincount(line, minlength=nl)

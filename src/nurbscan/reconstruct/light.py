@@ -37,6 +37,7 @@ __all__ = [
     "intersect_surface",
     "compare_light_surfaces",
     "edge_sensor",
+    "other_coordinate",
 ]
 
 
@@ -130,6 +131,20 @@ def intersect_exact(projector, origin, dirs, direction: str, coord, iters: int =
     other = np.where(bad, np.nan, other)
     t = np.where(bad, np.nan, t)
     return pts, other, t
+
+
+def other_coordinate(rig, pixels, direction: str, coord) -> np.ndarray:
+    """The other projector coordinate at camera pixels lying on projector edges.
+
+    Each pixel's camera ray (:meth:`~nurbscan.camera.Camera.back_project`, eq. 6-8) meets the
+    exact light surface of its edge (``direction`` ``"vertical"``: ``x = coord``;
+    :func:`intersect_exact`); the projector ``y`` (``x`` for horizontal edges) of that point
+    is returned, px (N,), NaN where the ray misses. ``pixels`` (N, 2) camera px, ``coord``
+    (N,) projector px. This is the epipolar constraint that
+    :func:`nurbscan.detect.core.epipolar_labels` decodes with.
+    """
+    o, d = rig.camera.back_project(np.asarray(pixels, float).reshape(-1, 2))
+    return intersect_exact(rig.projector, o, d, direction, coord)[1]
 
 
 def _undistorted_line(projector, direction: str, coord: float, w: np.ndarray):

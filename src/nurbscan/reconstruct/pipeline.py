@@ -9,6 +9,7 @@ collects everything into one :class:`~nurbscan.reconstruct.model.Model`.
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 from collections.abc import Callable
@@ -20,7 +21,7 @@ from .._parallel import process_map
 from ..errors import NurbscanError
 from ..io import read_image
 from ..io.atomic import read_json
-from .light import compare_light_surfaces
+from .light import compare_light_surfaces, other_coordinate
 from .merge import curve_to_object, rig_to_object, surface_to_object
 from .model import Model
 from .view import ViewResult, reconstruct_view
@@ -121,7 +122,9 @@ def _view_job(job: dict):
     grid = read_image(job["grid"])
     white = read_image(job["white"]) if job["white"] is not None else None
     t1 = time.perf_counter()
-    det = detect_grid(grid, job["pattern"], white)
+    # decode with the rig's epipolar constraint too (detect_grid's ``epipolar``)
+    det = detect_grid(grid, job["pattern"], white,
+                      epipolar=functools.partial(other_coordinate, job["rig"]))
     t2 = time.perf_counter()
     res = reconstruct_view(det, job["rig"], job["pattern"], **job["kwargs"])
     t3 = time.perf_counter()
