@@ -265,7 +265,7 @@ def build_report(model_dir: str | os.PathLike, overlays=None, evaluation=None,
             raise NurbscanError(f"{p}: not a readable overlay image")
         ov.append((Path(p).name, _png_uri(img)))
     if not ov and detect and scan is not None and (scan / "scan.json").is_file():
-        ov = detect_overlays(scan)
+        ov = detect_overlays(scan, rig=rig)
     pic = folder / "model.png"
     pic_uri = None
     if pic.is_file():
@@ -281,18 +281,22 @@ def write_report(model_dir: str | os.PathLike, output: str | os.PathLike, **kw) 
 
 
 def detect_overlays(scan_dir: str | os.PathLike, max_views: int = 4,
-                    max_width: int = 640) -> list[tuple[str, str]]:
+                    max_width: int = 640, rig=None) -> list[tuple[str, str]]:
     """Detected-line overlays of a scan's views, computed now: ``[(name, PNG data URI)]``.
 
     Runs :func:`nurbscan.detect.detect_grid` on the grid image of each of the first
-    ``max_views`` views (normalised by its white image) and draws
-    :func:`nurbscan.detect.draw_overlay`; views whose images are missing are left out.
+    ``max_views`` views (normalised by its white image; with the calibrated ``rig``, when
+    its camera has the image's size, also decoding with its epipolar constraint as
+    ``nurbscan reconstruct`` does) and draws :func:`nurbscan.detect.draw_overlay`; views
+    whose images are missing are left out.
     """
+    import functools
     import warnings
 
     from ..detect import detect_grid, draw_overlay
     from ..io import read_image
     from ..pattern import load_pattern
+    from ..reconstruct.light import other_coordinate
 
     scan = Path(scan_dir)
     doc = read_json(scan / "scan.json")
@@ -307,9 +311,12 @@ def detect_overlays(scan_dir: str | os.PathLike, max_views: int = 4,
             continue
         image = read_image(grid, as_float=False)
         wimg = read_image(white, as_float=False) if white.is_file() else None
+        epipolar = None
+        if rig is not None and (rig.camera.width, rig.camera.height) == image.shape[1::-1]:
+            epipolar = functools.partial(other_coordinate, rig)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            res = detect_grid(image, pattern, wimg)
+            res = detect_grid(image, pattern, wimg, epipolar=epipolar)
         rgb = draw_overlay(image, res, pattern)
         out.append((f"view {v.get('index')}: {res.nlines} lines ({grid.name})",
                     _png_uri(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), max_width)))
