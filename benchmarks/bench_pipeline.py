@@ -38,7 +38,6 @@ import sys
 import tempfile
 import time
 import tracemalloc
-from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -134,8 +133,7 @@ def one_view(tmp: Path) -> tuple[dict, dict]:
     from nurbscan.detect import detect_grid
     from nurbscan.pattern import Pattern
     from nurbscan.reconstruct import Model, reconstruct_view
-    from nurbscan.reconstruct.light import other_coordinate
-    from nurbscan.reconstruct.pipeline import add_view
+    from nurbscan.reconstruct.pipeline import add_view, detect_options
     from nurbscan.simulate import RenderSettings, default_rig, make_scene, render_view, scale_camera
 
     rig = default_rig()
@@ -160,8 +158,7 @@ def one_view(tmp: Path) -> tuple[dict, dict]:
     tri, net = [], []
 
     def image_to_gordon():
-        r = reconstruct_view(detect_grid(view.grid, pattern, view.white,
-                                         epipolar=partial(other_coordinate, rig)),
+        r = reconstruct_view(detect_grid(view.grid, pattern, view.white, **detect_options(rig)),
                              rig, pattern)
         tri.append(r.times["triangulate_s"])
         net.append(r.times["network_s"])
@@ -195,7 +192,7 @@ def size_scaling(reuse: dict) -> dict:
     """Simulate / detect / image-to-Gordon seconds at each image size, and the fitted slopes."""
     from nurbscan.detect import detect_grid
     from nurbscan.reconstruct import reconstruct_view
-    from nurbscan.reconstruct.light import other_coordinate
+    from nurbscan.reconstruct.pipeline import detect_options
     from nurbscan.simulate import RenderSettings, default_rig, render_view, scale_camera
 
     scene, pattern, angle = reuse["scene"], reuse["pattern"], reuse["angle"]
@@ -211,7 +208,7 @@ def size_scaling(reuse: dict) -> dict:
             ts = time.perf_counter() - t
         td, _, _, _ = measure(lambda v=view: detect_grid(v.grid, pattern, v.white))
         ta, n, _, res = measure(lambda v=view, r=rig: reconstruct_view(
-            detect_grid(v.grid, pattern, v.white, epipolar=partial(other_coordinate, r)), r,
+            detect_grid(v.grid, pattern, v.white, **detect_options(r)), r,
             pattern))
         px.append(w * h)
         t_det.append(td)
@@ -237,8 +234,7 @@ def view_scaling(reuse: dict) -> dict:
     """Detect + reconstruct + merge seconds for 1, 2, 4, 8 views at 1 MP, and the slope."""
     from nurbscan.detect import detect_grid
     from nurbscan.reconstruct import Model, reconstruct_view
-    from nurbscan.reconstruct.light import other_coordinate
-    from nurbscan.reconstruct.pipeline import add_view
+    from nurbscan.reconstruct.pipeline import add_view, detect_options
     from nurbscan.simulate import RenderSettings, default_rig, render_view, scale_camera
 
     scene, pattern = reuse["scene"], reuse["pattern"]
@@ -253,7 +249,7 @@ def view_scaling(reuse: dict) -> dict:
         model = Model()
         for k in range(n):
             res = reconstruct_view(detect_grid(views[k].grid, pattern, views[k].white,
-                                               epipolar=partial(other_coordinate, rig)), rig,
+                                               **detect_options(rig)), rig,
                                    pattern)
             add_view(model, res, rig, k, angles[k])
         return model

@@ -114,6 +114,24 @@ def _write_overlay(path: Path, image: np.ndarray, det, pattern, width: int = 153
     write_image(path, rgb)
 
 
+def detect_options(rig) -> dict:
+    """:func:`~nurbscan.detect.detect_grid` options for reconstruction with a calibrated rig.
+
+    Decode with the rig's epipolar constraint too (``epipolar``), and keep the lines and
+    points that only the row-support filters would drop (``min_row_support=0``,
+    ``max_row_residual=0``, ``keep_unsupported=True``). Those filters guard the point
+    accuracy of a plain detection; here the network's 3-D crossing test
+    (:func:`~nurbscan.reconstruct.network.complete_cells`) guards the surfaces. Teapot scan
+    (7.1 MP, 8 views, rig calibrated from the images): Gordon coverage 61.1 -> 65.7 %,
+    Gordon mean 0.0043 -> 0.0047 mm, max 0.018 -> 0.019 mm; the raw triangulated edge
+    points more than 0.5 mm off the surface 0.05 -> 0.16 %; the detection itself (views
+    0-7): coverage 0.706 -> 0.748, RMS 0.057 -> 0.092 px, 1 -> 10 wrong lines over 20 px,
+    none of which reaches a surface.
+    """
+    return {"epipolar": functools.partial(other_coordinate, rig), "min_row_support": 0.0,
+            "max_row_residual": 0.0, "keep_unsupported": True}
+
+
 def _view_job(job: dict):
     """Read, detect and reconstruct one view: ``(ViewResult, lines, timings)``."""
     from ..detect import detect_grid
@@ -122,9 +140,7 @@ def _view_job(job: dict):
     grid = read_image(job["grid"])
     white = read_image(job["white"]) if job["white"] is not None else None
     t1 = time.perf_counter()
-    # decode with the rig's epipolar constraint too (detect_grid's ``epipolar``)
-    det = detect_grid(grid, job["pattern"], white,
-                      epipolar=functools.partial(other_coordinate, job["rig"]))
+    det = detect_grid(grid, job["pattern"], white, **detect_options(job["rig"]))
     t2 = time.perf_counter()
     res = reconstruct_view(det, job["rig"], job["pattern"], **job["kwargs"])
     t3 = time.perf_counter()
