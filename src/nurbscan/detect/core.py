@@ -499,8 +499,7 @@ def interpolate_labels(label, x, y, cls, line, lcode, pattern, span: float,
         if not len(k):
             continue
         e = edge[k]
-        b = np.clip(np.round((ci[k] - edges[0, e]) / pattern.pitch).astype(np.int64), 0,
-                    len(edges) - 1)
+        b = nearest_band(edges, ci[k], e, pattern.pitch)
         good = np.abs(ci[k] - edges[b, e]) <= tol
         # every edge point of the row between the two labelled ones is one pattern edge: as
         # many points lie between them and this point as pattern edges (no edge missed or
@@ -514,6 +513,23 @@ def interpolate_labels(label, x, y, cls, line, lcode, pattern, span: float,
         return label
     return _assign_votes(label, np.concatenate(vl), np.concatenate(vv), lcode, seq, min_votes,
                          min_agreement, accept_unknown=not require_colour)
+
+
+def nearest_band(edges: np.ndarray, coord: np.ndarray, edge: np.ndarray,
+                 pitch: float) -> np.ndarray:
+    """Index (K,) of the band whose ``edge`` (0 rising, 1 falling; (K,)) is nearest to the
+    projector coordinates ``coord`` (K,), px; ``edges`` (B, 2) as ``Pattern.vertical_edges``."""
+    return np.clip(np.round((coord - edges[0, edge]) / pitch).astype(np.int64), 0,
+                   len(edges) - 1)
+
+
+def point_coordinates(lab: np.ndarray, cls: np.ndarray, pattern) -> np.ndarray:
+    """Projector coordinate (N,) of the labelled edge of each point (band ``lab``, class
+    ``cls`` = direction * 2 + edge); NaN for unlabelled points (``lab`` -1)."""
+    vert = cls // 2 == 0
+    return np.where(vert,
+                    pattern.edge_coordinate("vertical", np.where(vert, lab, -1), cls % 2),
+                    pattern.edge_coordinate("horizontal", np.where(vert, -1, lab), cls % 2))
 
 
 def epipolar_coordinates(label, x, y, cls, line, pattern, other_coordinate, radius: float,
@@ -536,12 +552,12 @@ def epipolar_coordinates(label, x, y, cls, line, pattern, other_coordinate, radi
     lab = label[line]
     d = cls // 2
     known = lab >= 0
+    coord = point_coordinates(lab, cls, pattern)
     other = np.full(len(x), np.nan)
     for dd, name in ((0, "vertical"), (1, "horizontal")):
         m = np.nonzero(known & (d == dd))[0]
         if len(m):
-            other[m] = other_coordinate(np.c_[x[m], y[m]], name,
-                                        pattern.edge_coordinate(name, lab[m], cls[m] % 2))
+            other[m] = other_coordinate(np.c_[x[m], y[m]], name, coord[m])
     pred = np.full(len(x), np.nan)
     for dd in (0, 1):
         src = np.nonzero(known & (d == 1 - dd) & np.isfinite(other))[0]
@@ -596,8 +612,7 @@ def epipolar_labels(label, pred, cls, line, lcode, pattern, tol: float = 0.25,
                          & np.isfinite(pred))[0]
         edges = pattern.vertical_edges if dd == 0 else pattern.horizontal_edges
         e = cls[dst] % 2
-        b = np.clip(np.round((pred[dst] - edges[0, e]) / pattern.pitch).astype(np.int64), 0,
-                    len(edges) - 1)
+        b = nearest_band(edges, pred[dst], e, pattern.pitch)
         good = np.abs(pred[dst] - edges[b, e]) <= tol * pattern.pitch
         vl.append(line[dst[good]])
         vv.append(b[good])
@@ -616,13 +631,8 @@ def epipolar_check(label, pred, cls, line, pattern, tol: float = 0.25,
     """
     nl = len(label)
     lab = label[line]
-    d = cls // 2
     m = (lab >= 0) & np.isfinite(pred)
-    coord = np.full(len(line), np.nan)
-    for dd, name in ((0, "vertical"), (1, "horizontal")):
-        k = m & (d == dd)
-        coord[k] = pattern.edge_coordinate(name, lab[k], cls[k] % 2)
-    off = m & (np.abs(pred - coord) > tol * pattern.pitch)
+    off = m & (np.abs(pred - point_coordinates(lab, cls, pattern)) > tol * pattern.pitch)
     n = np.bincount(line[m], minlength=nl)
     bad = (n >= min_points) & (np.bincount(line[off], minlength=nl) > 0.5 * n)
     return np.where(bad, -1, label)
