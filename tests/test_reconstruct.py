@@ -394,8 +394,8 @@ def test_reconstruct_cli_errors(small_scan, tmp_path, capsys):
     assert main(["evaluate", str(tmp_path / "nope"), "--truth", str(small_scan / "truth")]) == 2
 
 
-def test_validated_runs_need_three_agreeing_crossings():
-    """A run over one band of the other direction (two crossings) bounds no cell: not kept."""
+def test_validated_runs_need_five_agreeing_crossings():
+    """A run must span two cells (five crossings) to validate a line curve."""
     from nurbscan.reconstruct.network import _validated_runs
 
     params = np.array([10.0, 16.0, 26.0, 32.0, 42.0, 48.0, 58.0])
@@ -407,3 +407,38 @@ def test_validated_runs_need_three_agreeing_crossings():
     assert _validated_runs(params, seg, good) == [(10.0, 42.0, 0)]
     assert _validated_runs(params, seg, good, min_crossings=2) == [(10.0, 42.0, 0),
                                                                    (48.0, 58.0, 1)]
+    good[0] = False  # 16-42: four crossings, one cell and a half
+    assert _validated_runs(params, seg, good) == []
+    assert _validated_runs(params, seg, good, min_crossings=3) == [(16.0, 42.0, 0)]
+
+
+def test_cells_reach_past_the_data_ends():
+    """Lines whose data stop 2 px short of their last crossing (the blurred corner of a band
+    crossing) complete the last cells by their end tangents, and the patch stays exact."""
+    from nurbscan.reconstruct.network import _evaluate
+
+    cu = np.sort(np.r_[np.arange(100.0, 260, 16), np.arange(106.0, 260, 16)])
+    cv = np.sort(np.r_[np.arange(80.0, 200, 16), np.arange(86.0, 200, 16)])
+    # vertical data end 2 px before the last horizontal curve, horizontal ones 2 px before
+    # the last vertical curve
+    V = [_netline("vertical", c, np.linspace(70, cv[-1] - 2.0, 300)) for c in cu]
+    H = [_netline("horizontal", c, np.linspace(90, cu[-1] - 2.0, 300)) for c in cv]
+    mask0, _ = complete_cells(V, H, reach=0.0)
+    assert not mask0[-1, :].any() and not mask0[:, -1].any() and mask0[:-1, :-1].all()
+    mask, X = complete_cells(V, H, reach=4.0)
+    assert mask.all()
+    # the crossings the tangents reach are exact to the curvature term (well under 0.07 mm)
+    uu, vv = np.meshgrid(cu, cv, indexing="ij")
+    assert np.max(np.linalg.norm(X - _surface(uu, vv), axis=2)) < 2e-3
+    p = gordon_patch(V, H, (0, len(cu) - 1, 0, len(cv) - 1), reach=4.0)
+    G = p.gordon.evaluate(uu.ravel(), vv.ravel())
+    assert np.max(np.linalg.norm(G - _surface(uu.ravel(), vv.ravel()), axis=1)) < 2e-3
+    # beyond the domain: the end tangent line; inside: the curve
+    c = V[0].curves[0]
+    lo, hi = c.domain
+    d1 = c.derivatives(np.array([hi]), 1)[1][0]
+    ext = _evaluate(c, np.array([hi - 1.0, hi + 3.0]))
+    assert np.allclose(ext[0], c.evaluate(np.array([hi - 1.0]))[0])
+    assert np.allclose(ext[1], c.evaluate(np.array([hi]))[0] + 3.0 * d1)
+    # a line that does not reach within 4 px stays short
+    assert not complete_cells(V, H, reach=1.5)[0][-1, :].any()

@@ -9,7 +9,8 @@ exactly what a Gordon surface needs (Gordon 1969; Piegl and Tiller section 10.5)
 reparametrisation.
 
 A *cell* ``(i, j)`` of the network is complete when both vertical curves ``i, i + 1`` cover
-``[c_j, c_j+1]`` and both horizontal curves ``j, j + 1`` cover ``[c_i, c_i+1]`` without a gap, and
+``[c_j, c_j+1]`` and both horizontal curves ``j, j + 1`` cover ``[c_i, c_i+1]`` without a gap
+(an interval's curve reaches a few projector px beyond its data, along its end tangent), and
 the two curves agree at the four crossings (within ``crossing_tol`` mm). Shadows, occlusion and
 silhouettes leave incomplete cells; the complete ones are split into rectangles of consecutive
 lines, largest first (:func:`rectangles`), each at least ``min_curves`` x ``min_curves``.
@@ -194,46 +195,78 @@ def build_lines(lines: list[Line3D], gap: float = 13.0, jump: float = 0.3,
     return fam["vertical"], fam["horizontal"]
 
 
-def _covers(line: NetLine, a: np.ndarray, b: np.ndarray, margin: float) -> np.ndarray:
-    """Index of the interval of ``line`` covering [a - margin, b + margin] (arrays), or -1."""
+def _covers(line: NetLine, a: np.ndarray, b: np.ndarray, margin: float,
+            reach: float = 0.0) -> np.ndarray:
+    """Index of the interval of ``line`` covering [a - margin, b + margin] (arrays), or -1.
+
+    An interval reaches ``reach`` px beyond its data at both ends (see :func:`_evaluate`).
+    """
     if len(line.starts) == 0:
         return np.full(a.shape, -1)
-    k = np.searchsorted(line.starts, a - margin, side="right") - 1
+    k = np.searchsorted(line.starts - reach, a - margin, side="right") - 1
     kk = np.clip(k, 0, len(line.starts) - 1)
-    ok = (k >= 0) & (line.ends[kk] >= b + margin)
+    ok = (k >= 0) & (line.ends[kk] + reach >= b + margin)
     return np.where(ok, kk, -1)
 
 
-def _crossings(lines: list[NetLine], params: np.ndarray, margin: float):
+def _evaluate(curve: NurbsCurve, w: np.ndarray) -> np.ndarray:
+    """Points (n, 3) of a line's curve at ``w``; beyond its domain the end tangent line.
+
+    The data of an edge line stop a little short of its crossings with the other family at
+    the ends of a covered interval (the corner of a band crossing blurs the edge within about
+    a camera pixel); the first-order extension bridges that shortfall.
+    """
+    lo, hi = curve.domain
+    wc = np.clip(w, lo, hi)
+    P = curve.evaluate(wc)
+    out = (w < lo) | (w > hi)
+    if np.any(out):
+        D = curve.derivatives(wc[out], 1)[1]
+        P[out] += (w[out] - wc[out])[:, None] * D
+    return P
+
+
+def _crossings(lines: list[NetLine], params: np.ndarray, margin: float, reach: float = 0.0):
     """Points (n_lines, n_params, 3) of each line's curves at the other family's params."""
     out = np.full((len(lines), len(params), 3), np.nan)
     seg = np.full((len(lines), len(params)), -1)
     for i, ln in enumerate(lines):
-        k = _covers(ln, params, params, margin)
+        k = _covers(ln, params, params, margin, reach)
         seg[i] = k
         for s in np.unique(k[k >= 0]):
             sel = k == s
-            c = ln.curves[s]
-            lo, hi = c.domain
-            out[i, sel] = c.evaluate(np.clip(params[sel], lo, hi))
+            out[i, sel] = _evaluate(ln.curves[s], params[sel])
     return out, seg
 
 
 def complete_cells(vlines: list[NetLine], hlines: list[NetLine], crossing_tol: float = 0.07,
-                   margin: float = 1.0):
+                   margin: float = 1.0, reach: float = 0.0, min_run: int = 5):
     """Mask of complete cells (nV - 1, nH - 1) and the crossing points (nV, nH, 3), mm.
 
     The crossing point is the mean of the vertical and the horizontal curve's points. Also sets
     each line's ``crossings``: the number of agreeing crossings of each of its intervals (a
-    mislabelled edge line meets the other family nowhere within ``crossing_tol``).
+    mislabelled edge line meets the other family nowhere within ``crossing_tol``), and its
+    ``validated`` runs of at least ``min_run`` agreeing crossings (:func:`_validated_runs`).
+
+    Parameters
+    ----------
+    crossing_tol : float
+        Largest distance (mm) of the two curves at a crossing.
+    margin : float
+        A crossing must lie at least this far (projector px) inside a covered interval.
+    reach : float
+        Intervals reach this far (projector px) beyond their data, along their end tangents
+        (:func:`_evaluate`).
+    min_run : int
+        Fewest consecutive agreeing crossings of a validated run.
     """
     cv = np.array([ln.coord for ln in vlines])
     ch = np.array([ln.coord for ln in hlines])
     nv, nh = len(cv), len(ch)
     if nv < 2 or nh < 2:
         return np.zeros((max(nv - 1, 0), max(nh - 1, 0)), bool), np.zeros((nv, nh, 3))
-    Xv, segv = _crossings(vlines, ch, margin)  # vertical i at v = c_j
-    Xh, segh = _crossings(hlines, cv, margin)  # horizontal j at u = c_i
+    Xv, segv = _crossings(vlines, ch, margin, reach)  # vertical i at v = c_j
+    Xh, segh = _crossings(hlines, cv, margin, reach)  # horizontal j at u = c_i
     Xh = Xh.transpose(1, 0, 2)
     segh = segh.T
     agree = np.linalg.norm(Xv - Xh, axis=2) < crossing_tol
@@ -246,22 +279,25 @@ def complete_cells(vlines: list[NetLine], hlines: list[NetLine], crossing_tol: f
     good = agree & (segv >= 0) & (segh >= 0)
     for i, ln in enumerate(vlines):
         ln.crossings = np.bincount(segv[i][good[i]], minlength=len(ln.starts))
-        ln.validated = _validated_runs(ch, segv[i], good[i])
+        ln.validated = _validated_runs(ch, segv[i], good[i], min_run)
     for j, ln in enumerate(hlines):
         ln.crossings = np.bincount(segh[:, j][good[:, j]], minlength=len(ln.starts))
-        ln.validated = _validated_runs(cv, segh[:, j], good[:, j])
+        ln.validated = _validated_runs(cv, segh[:, j], good[:, j], min_run)
     return ok, X
 
 
 def _validated_runs(params: np.ndarray, seg: np.ndarray, good: np.ndarray,
-                    min_crossings: int = 3) -> list:
+                    min_crossings: int = 5) -> list:
     """Runs of consecutive crossings of one line that all agree, inside one interval.
 
     Returns ``(lo, hi, interval)`` parameter ranges spanning at least ``min_crossings``
     crossings. Two crossings are the two edges of one band of the other direction, a band
     width apart: such a run bounds no cell, and near an occluding contour, where the short
     runs are, it is the least reliable part of a line (7.1 MP teapot: stubs 1.2 mm long
-    0.2 mm off the surface, against 0.004 mm for the rest).
+    0.2 mm off the surface, against 0.004 mm for the rest). Five crossings span two cells:
+    with the looser crossing test of :func:`nurbscan.reconstruct.view.reconstruct_view`,
+    three-crossing stubs one cell long reached 0.061 mm (the worst vertical line curve of
+    the teapot demo), five-crossing runs stay under 0.04 mm.
     """
     runs = []
     n = len(params)
@@ -339,18 +375,17 @@ class Patch:
     crossings: np.ndarray  # (I, J, 3)
 
 
-def _resample(ln: NetLine, a: float, b: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+def _resample(ln: NetLine, a: float, b: float, n: int, reach: float = 0.0
+              ) -> tuple[np.ndarray, np.ndarray]:
     """``n`` samples of the line's 3-D curve (the interval covering [a, b]) on [a, b]."""
-    k = int(_covers(ln, np.array([a]), np.array([b]), 0.0)[0])
+    k = int(_covers(ln, np.array([a]), np.array([b]), 0.0, reach)[0])
     if k < 0:  # the cell test guarantees coverage up to its margin: take the nearest interval
         k = int(np.argmin(np.abs(0.5 * (ln.starts + ln.ends) - 0.5 * (a + b))))
-    c = ln.curves[k]
-    lo, hi = c.domain
     w = np.linspace(a, b, n)
-    return w, c.evaluate(np.clip(w, lo, hi))
+    return w, _evaluate(ln.curves[k], w)
 
 
-def gordon_patch(vlines, hlines, rect, per_span: int = 6) -> Patch:
+def gordon_patch(vlines, hlines, rect, per_span: int = 6, reach: float = 0.0) -> Patch:
     """Skins and Gordon surface of one rectangle ``(i0, i1, j0, j1)`` of cells.
 
     Each curve segment is re-approximated on the patch's knots from ``per_span`` samples per
@@ -369,12 +404,12 @@ def gordon_patch(vlines, hlines, rect, per_span: int = 6) -> Patch:
     Bv = basis_matrix(cv, q, Kv, nJ)
     Qh = np.empty((nJ, nI, 3))  # control points of horizontal curves (in u)
     for j, ln in enumerate(H):
-        w, P = _resample(ln, cu[0], cu[-1], per_span * nI)
+        w, P = _resample(ln, cu[0], cu[-1], per_span * nI, reach)
         c = lstsq_spline(w, P, Ku, degree=p, smooth=1e-9)
         Qh[j] = c.control_points
     Qv = np.empty((nI, nJ, 3))
     for i, ln in enumerate(V):
-        w, P = _resample(ln, cv[0], cv[-1], per_span * nJ)
+        w, P = _resample(ln, cv[0], cv[-1], per_span * nJ, reach)
         c = lstsq_spline(w, P, Kv, degree=q, smooth=1e-9)
         Qv[i] = c.control_points
     # grid points: mean of the two segment fits at the crossing
@@ -412,9 +447,9 @@ def line_curves(vlines, hlines) -> list[tuple[str, NetLine, NurbsCurve]]:
     """The validated parts of the network's 3-D curves: (direction, line, curve).
 
     A line's curve is kept between consecutive crossings where it agrees with the curves of the
-    other direction (within the crossing tolerance), over runs of at least three such crossings
-    (:func:`complete_cells` finds them; three crossings: beyond one band of the other
-    direction): the parts of the edge lines that the network confirms.
+    other direction (within the crossing tolerance), over runs of at least five such crossings
+    (:func:`complete_cells` finds them; five crossings: two cells of the network): the parts
+    of the edge lines that the network confirms.
     A mislabelled chain, or a stretch bridged over a depth step, meets the other family
     nowhere, or disagrees with it, and is left out.
     """
@@ -430,8 +465,15 @@ def line_curves(vlines, hlines) -> list[tuple[str, NetLine, NurbsCurve]]:
 
 
 def build_network(lines: list[Line3D], min_curves: int = 3, crossing_tol: float = 0.07,
-                  gap: float = 13.0, jump: float = 0.3, knot_spacing: float = 16.0):
+                  gap: float = 13.0, jump: float = 0.3, knot_spacing: float = 16.0,
+                  reach: float = 4.0):
     """Network, complete cells and Gordon patches of one view.
+
+    ``reach`` (projector px): how far a covered interval extends beyond its data along its
+    end tangents, for the cell test and the patches (:func:`complete_cells`). An edge's data
+    stop a camera pixel or two short of the band crossings at the ends of its intervals, so
+    without it the last cell before a data end is always lost. Teapot demo scan: Gordon
+    coverage 73.2 -> 74.5 % (2 px: 73.4 %, 6 px: 74.4 %).
 
     Returns
     -------
@@ -441,11 +483,11 @@ def build_network(lines: list[Line3D], min_curves: int = 3, crossing_tol: float 
         Complete cells.
     """
     vlines, hlines = build_lines(lines, gap=gap, jump=jump, knot_spacing=knot_spacing)
-    mask, X = complete_cells(vlines, hlines, crossing_tol)
+    mask, X = complete_cells(vlines, hlines, crossing_tol, reach=reach)
     patches = []
     if mask.size:
         for rect in rectangles(mask, max(min_curves - 1, 1)):
-            patches.append(gordon_patch(vlines, hlines, rect))
+            patches.append(gordon_patch(vlines, hlines, rect, reach=reach))
     return vlines, hlines, patches, mask
 
 

@@ -127,9 +127,19 @@ def detect_options(rig) -> dict:
     points more than 0.5 mm off the surface 0.05 -> 0.16 %; the detection itself (views
     0-7): coverage 0.706 -> 0.748, RMS 0.057 -> 0.092 px, 1 -> 10 wrong lines over 20 px,
     none of which reaches a surface.
+
+    The point filters that drop single points near the band corners and off the straight
+    line through their neighbours are off as well (``max_residual``, ``refit_residual``,
+    ``end_residual`` 0, ``keep_partner`` False, ``min_width`` 0, ``min_strength`` 0.06):
+    the 3-D curve fits remove outliers themselves. With the looser crossing test and the
+    tangent reach of the network (:func:`~nurbscan.reconstruct.view.reconstruct_view`),
+    teapot scan: Gordon coverage 72.5 -> 74.5 %, Gordon mean 0.0061 -> 0.0065 mm; detection,
+    views 0-1: coverage 0.743 -> 0.799, RMS 0.10 -> 0.13 px.
     """
     return {"epipolar": functools.partial(other_coordinate, rig), "min_row_support": 0.0,
-            "max_row_residual": 0.0, "keep_unsupported": True}
+            "max_row_residual": 0.0, "keep_unsupported": True, "max_residual": 0.0,
+            "refit_residual": 0.0, "end_residual": 0.0, "keep_partner": False,
+            "min_width": 0.0, "min_strength": 0.06}
 
 
 def _view_job(job: dict):
