@@ -219,7 +219,7 @@ def test_network_splits_at_holes():
     mask, _ = complete_cells(V, H)
     bad = ~mask
     assert bad.any() and bad[7:9].any() and not bad[:7].any()
-    rects = rectangles(mask, 2)
+    rects = rectangles(mask, 2, overlap=False)
     covered = np.zeros_like(mask)
     for i0, i1, j0, j1 in rects:
         assert i1 - i0 >= 2 and j1 - j0 >= 2
@@ -235,6 +235,28 @@ def test_rectangles_greedy_largest_first():
     m[5, 0] = True
     r = rectangles(m, 2)
     assert r[0] == (0, 4, 0, 5) and r[1] == (4, 6, 5, 8) and len(r) == 2
+
+
+def test_rectangles_cover_narrow_strips_by_overlapping():
+    """A one-cell strip beside a larger rectangle is covered by a rectangle reusing cells."""
+    m = np.zeros((7, 9), bool)
+    m[0:4, 0:6] = True  # 4 x 6: taken first
+    m[4, 1:4] = True  # a strip one cell high below it
+    m[0:2, 6] = True  # a strip one cell wide beside it
+    m[6, 8] = True  # a lone cell: no 2 x 2 window of complete cells holds it
+    plain = rectangles(m, 2, overlap=False)
+    assert plain == [(0, 4, 0, 6)]
+    r = rectangles(m, 2)
+    assert r[0] == (0, 4, 0, 6) and len(r) == 3
+    covered = np.zeros_like(m)
+    for i0, i1, j0, j1 in r:
+        assert i1 - i0 >= 2 and j1 - j0 >= 2 and m[i0:i1, j0:j1].all()
+        covered[i0:i1, j0:j1] = True
+    lone = np.zeros_like(m)
+    lone[6, 8] = True
+    assert np.array_equal(covered, m & ~lone)
+    # the strip below: the rows 3-4 window grown along the strip, (3, 5, 1, 4)
+    assert (3, 5, 1, 4) in r and (0, 2, 5, 7) in r
 
 
 # ---------------------------------------------------------------------- frames and model I/O

@@ -13,7 +13,8 @@ A *cell* ``(i, j)`` of the network is complete when both vertical curves ``i, i 
 (an interval's curve reaches a few projector px beyond its data, along its end tangent), and
 the two curves agree at the four crossings (within ``crossing_tol`` mm). Shadows, occlusion and
 silhouettes leave incomplete cells; the complete ones are split into rectangles of consecutive
-lines, largest first (:func:`rectangles`), each at least ``min_curves`` x ``min_curves``.
+lines, largest first (:func:`rectangles`), each at least ``min_curves`` x ``min_curves``, and the
+narrow strips left over get rectangles that overlap the others.
 The same crossing test validates the line curves (:func:`line_curves`).
 
 For one rectangle with vertical parameters ``c_i0 .. c_i1`` (``I`` curves) and horizontal ones
@@ -341,8 +342,15 @@ def _largest(mask: np.ndarray, min_r: int, min_c: int):
     return arg
 
 
-def rectangles(mask: np.ndarray, min_cells: int = 2) -> list[tuple[int, int, int, int]]:
+def rectangles(mask: np.ndarray, min_cells: int = 2, overlap: bool = True
+               ) -> list[tuple[int, int, int, int]]:
     """Split complete cells into rectangles, largest first (greedy maximal rectangles).
+
+    With ``overlap``, the complete cells that no rectangle of at least ``min_cells`` x
+    ``min_cells`` takes in that split (strips narrower than ``min_cells`` beside a larger
+    rectangle) get further rectangles that may reuse cells already taken
+    (:func:`_grow`). Teapot demo scan: 3.6 % more cells per view, Gordon coverage 74.5 ->
+    77.0 %, twice the patches (848), Gordon mean 0.0065 -> 0.0067 mm.
 
     Returns list of (i0, i1, j0, j1): cells i0 .. i1 - 1 by j0 .. j1 - 1, so the patch uses
     vertical curves i0 .. i1 and horizontal curves j0 .. j1.
@@ -352,9 +360,53 @@ def rectangles(mask: np.ndarray, min_cells: int = 2) -> list[tuple[int, int, int
     while True:
         r = _largest(m, min_cells, min_cells)
         if r is None:
-            return out
+            break
         out.append(r)
         m[r[0]:r[1], r[2]:r[3]] = False
+    if overlap:
+        for a, b in zip(*np.nonzero(m), strict=True):
+            if m[a, b]:
+                r = _grow(mask, m, int(a), int(b), min_cells)
+                if r is not None:
+                    out.append(r)
+                    m[r[0]:r[1], r[2]:r[3]] = False
+    return out
+
+
+def _grow(mask: np.ndarray, free: np.ndarray, a: int, b: int, k: int):
+    """A rectangle of complete cells (``mask``) holding cell ``(a, b)``: the ``k`` x ``k``
+    window around it with the most ``free`` cells, grown side by side while each added row or
+    column is complete and holds a free cell. None if no such window exists."""
+    R, C = mask.shape
+    best, arg = -1, None
+    for r0 in range(max(a - k + 1, 0), min(a, R - k) + 1):
+        for c0 in range(max(b - k + 1, 0), min(b, C - k) + 1):
+            if mask[r0:r0 + k, c0:c0 + k].all():
+                n = int(free[r0:r0 + k, c0:c0 + k].sum())
+                if n > best:
+                    best, arg = n, [r0, r0 + k, c0, c0 + k]
+    if arg is None:
+        return None
+    r0, r1, c0, c1 = arg
+    grown = True
+    while grown:
+        grown = False
+        for side in range(4):
+            if side == 0 and r0 > 0:
+                sl = (slice(r0 - 1, r0), slice(c0, c1))
+            elif side == 1 and r1 < R:
+                sl = (slice(r1, r1 + 1), slice(c0, c1))
+            elif side == 2 and c0 > 0:
+                sl = (slice(r0, r1), slice(c0 - 1, c0))
+            elif side == 3 and c1 < C:
+                sl = (slice(r0, r1), slice(c1, c1 + 1))
+            else:
+                continue
+            if mask[sl].all() and free[sl].any():
+                r0, r1, c0, c1 = ((r0 - 1, r1, c0, c1), (r0, r1 + 1, c0, c1),
+                                  (r0, r1, c0 - 1, c1), (r0, r1, c0, c1 + 1))[side]
+                grown = True
+    return r0, r1, c0, c1
 
 
 @dataclass(frozen=True)
