@@ -228,6 +228,31 @@ def test_network_splits_at_holes():
     assert len(rects) >= 2
 
 
+def _chain(c, w, z):
+    from nurbscan.reconstruct.triangulate import Line3D
+
+    P = _surface(np.full_like(w, c), w)
+    P[:, 2] += z  # a surface in front of (z < 0) or behind the analytic one
+    return Line3D("vertical", 0, 0, float(c), np.zeros(8), np.zeros((4, 2)), 0.0, w, P)
+
+
+def test_build_lines_keeps_both_sides_of_an_occluding_contour():
+    """Front and back surface of one edge meet at a contour with a sub-pixel overlap in w
+    (both kept, two intervals); a mislabelled chain overlapping by 10 px is dropped."""
+    from nurbscan.reconstruct.network import build_lines
+
+    back = _chain(100.0, np.linspace(60, 120.3, 120), 0.0)
+    front = _chain(100.0, np.linspace(120.0, 200, 160), -25.0)
+    V, H = build_lines([back, front])
+    assert not H and len(V) == 1
+    assert np.allclose(V[0].starts, [60, 120]) and np.allclose(V[0].ends, [120.3, 200])
+    V, _ = build_lines([back, front], overlap=0.0)  # the older rule drops the smaller
+    assert np.allclose(V[0].starts, [120]) and np.allclose(V[0].ends, [200])
+    wrong = _chain(100.0, np.linspace(110, 150, 60), 40.0)
+    V, _ = build_lines([_chain(100.0, np.linspace(60, 200, 280), 0.0), wrong])
+    assert np.allclose(V[0].starts, [60]) and np.allclose(V[0].ends, [200])
+
+
 def test_rectangles_greedy_largest_first():
     m = np.zeros((6, 8), bool)
     m[0:4, 0:5] = True

@@ -97,16 +97,18 @@ def _split_chains(lines: list[Line3D], gap: float, jump: float, trim: int = 0):
 
 
 def build_lines(lines: list[Line3D], gap: float = 13.0, jump: float = 0.3,
-                knot_spacing: float = 16.0, min_points: int = 8, trim: int = 0
-                ) -> tuple[list, list]:
+                knot_spacing: float = 16.0, min_points: int = 8, trim: int = 0,
+                overlap: float = 2.0) -> tuple[list, list]:
     """Join a view's chains per projector edge into covered intervals with 3-D curves.
 
     Chains are split at gaps and depth steps; the pieces of one edge, sorted by their first
     ``w``, are joined when the next starts after the current one's end (an overlap of at most
     0.5 px) within ``gap`` px and one quadratic in ``w`` fits the ends of both within ``jump`` mm
     RMS (:func:`nurbscan.reconstruct._batch.pair_quadratic_rms`: a depth step or a mislabelled
-    chain fails it). Of two overlapping intervals (one of them mislabelled) the one with fewer
-    samples is dropped. Each interval gets a least-squares cubic curve over ``w`` with uniform
+    chain fails it). Of two intervals overlapping by more than ``overlap`` px (one of them
+    mislabelled) the one with fewer samples is dropped; at an occluding contour the edge on
+    the front surface and on the one behind it overlap by a fraction of a pixel, and both
+    are kept (teapot demo scan: the spout's edges; Gordon coverage 77.0 -> 77.3 %). Each interval gets a least-squares cubic curve over ``w`` with uniform
     knots ``knot_spacing`` px apart and one pass of outlier removal (3 robust sigmas, at least
     0.05 mm), all intervals fitted together (:func:`nurbscan.reconstruct._batch.fit_chains`).
 
@@ -123,6 +125,8 @@ def build_lines(lines: list[Line3D], gap: float = 13.0, jump: float = 0.3,
         Intervals with fewer samples are dropped.
     trim : int
         Samples dropped at both ends of every chain.
+    overlap : float
+        Largest overlap (projector px) of two intervals of one edge that are both kept.
 
     Returns
     -------
@@ -161,7 +165,7 @@ def build_lines(lines: list[Line3D], gap: float = 13.0, jump: float = 0.3,
         for li, idx in lst:
             a0, a1 = w[idx[0]], w[idx[-1]]
             if len(idx) >= min_points and a1 > a0 and all(
-                    a1 < w[j[0]] or a0 > w[j[-1]] for _, j in mine):
+                    a1 < w[j[0]] + overlap or a0 > w[j[-1]] - overlap for _, j in mine):
                 mine.append((li, idx))
         mine.sort(key=lambda t: w[t[1][0]])
         kept += [(e, li, idx) for li, idx in mine]
