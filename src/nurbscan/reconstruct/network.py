@@ -108,9 +108,10 @@ def build_lines(lines: list[Line3D], gap: float = 13.0, jump: float = 0.3,
     chain fails it). Of two intervals overlapping by more than ``overlap`` px (one of them
     mislabelled) the one with fewer samples is dropped; at an occluding contour the edge on
     the front surface and on the one behind it overlap by a fraction of a pixel, and both
-    are kept (teapot demo scan: the spout's edges; Gordon coverage 77.0 -> 77.3 %). Each interval gets a least-squares cubic curve over ``w`` with uniform
-    knots ``knot_spacing`` px apart and one pass of outlier removal (3 robust sigmas, at least
-    0.05 mm), all intervals fitted together (:func:`nurbscan.reconstruct._batch.fit_chains`).
+    are kept (teapot demo scan: the spout's edges; Gordon coverage 77.0 -> 77.3 %). Each
+    interval gets a least-squares cubic curve over ``w`` with uniform knots ``knot_spacing``
+    px apart and one pass of outlier removal (3 robust sigmas, at least 0.05 mm), all
+    intervals fitted together (:func:`nurbscan.reconstruct._batch.fit_chains`).
 
     Parameters
     ----------
