@@ -204,6 +204,31 @@ def test_gordon_patch_reproduces_analytic_surface():
     assert np.max(np.linalg.norm(L1 - _surface(uu.ravel(), vv.ravel()), axis=1)) < 0.05
 
 
+def test_crossing_tolerance_grows_with_obliquity():
+    """Curves 0.1 mm apart at their crossings: beyond a 0.07 mm tolerance seen face on, within
+    it seen at a grazing angle (0.07 / max(cos, 0.3)); the line curves keep the nominal test."""
+    cu = np.arange(100.0, 200, 16)
+    cv = np.arange(80.0, 180, 16)
+    V = [_netline("vertical", c, np.linspace(70, 190, 200)) for c in cu]
+    H = [_netline("horizontal", c, np.linspace(90, 210, 200)) for c in cv]
+    for ln in H:  # the horizontal family 0.1 mm off the surface, along z
+        c = ln.curves[0]
+        ln.curves[0] = NurbsCurve(c.degree, c.knots, c.control_points + [0.0, 0.0, 0.1])
+    # the surface faces the front viewpoint (cos about 0.84) and turns from the side one (0.25)
+    front = np.array([30.0, 26.0, 0.0])
+    side = np.array([30.0 + 6000.0, 26.0, 600.0 + 600.0])
+    mask, _ = complete_cells(V, H, 0.07)
+    assert not mask.any()
+    mask, _ = complete_cells(V, H, 0.07, viewpoint=front)
+    assert not mask.any()
+    mask, _ = complete_cells(V, H, 0.07, viewpoint=side)
+    assert mask.all() and all(not ln.validated for ln in V + H)
+    mask, _ = complete_cells(V, H, 0.07, viewpoint=side, min_cos=0.8)
+    assert not mask.any()
+    mask, _ = complete_cells(V, H, 0.11)
+    assert mask.all() and all(ln.validated for ln in V + H)
+
+
 def test_network_splits_at_holes():
     """A missing stretch of one vertical line (a shadow) splits the network into patches."""
     cu = np.arange(100.0, 420, 16)

@@ -215,49 +215,65 @@ def _covers(line: NetLine, a: np.ndarray, b: np.ndarray, margin: float,
     return np.where(ok, kk, -1)
 
 
-def _evaluate(curve: NurbsCurve, w: np.ndarray) -> np.ndarray:
+def _evaluate(curve: NurbsCurve, w: np.ndarray, tangent: bool = False):
     """Points (n, 3) of a line's curve at ``w``; beyond its domain the end tangent line.
 
     The data of an edge line stop a little short of its crossings with the other family at
     the ends of a covered interval (the corner of a band crossing blurs the edge within about
-    a camera pixel); the first-order extension bridges that shortfall.
+    a camera pixel); the first-order extension bridges that shortfall. With ``tangent`` also
+    the derivatives ``dP/dw`` (n, 3), mm/px.
     """
     lo, hi = curve.domain
     wc = np.clip(w, lo, hi)
-    P = curve.evaluate(wc)
-    out = (w < lo) | (w > hi)
-    if np.any(out):
-        D = curve.derivatives(wc[out], 1)[1]
-        P[out] += (w[out] - wc[out])[:, None] * D
-    return P
+    P, D = curve.derivatives(wc, 1)
+    P = P + (w - wc)[:, None] * D
+    return (P, D) if tangent else P
 
 
 def _crossings(lines: list[NetLine], params: np.ndarray, margin: float, reach: float = 0.0):
-    """Points (n_lines, n_params, 3) of each line's curves at the other family's params."""
+    """Points and tangents ``dP/dw`` (n_lines, n_params, 3) of each line's curves at the
+    other family's params, and the covering interval (n_lines, n_params) or -1."""
     out = np.full((len(lines), len(params), 3), np.nan)
+    der = np.full((len(lines), len(params), 3), np.nan)
     seg = np.full((len(lines), len(params)), -1)
     for i, ln in enumerate(lines):
         k = _covers(ln, params, params, margin, reach)
         seg[i] = k
         for s in np.unique(k[k >= 0]):
             sel = k == s
-            out[i, sel] = _evaluate(ln.curves[s], params[sel])
-    return out, seg
+            out[i, sel], der[i, sel] = _evaluate(ln.curves[s], params[sel], tangent=True)
+    return out, der, seg
 
 
 def complete_cells(vlines: list[NetLine], hlines: list[NetLine], crossing_tol: float = 0.07,
-                   margin: float = 1.0, reach: float = 0.0, min_run: int = 5):
+                   margin: float = 1.0, reach: float = 0.0, min_run: int = 5,
+                   viewpoint=None, min_cos: float = 0.3):
     """Mask of complete cells (nV - 1, nH - 1) and the crossing points (nV, nH, 3), mm.
 
     The crossing point is the mean of the vertical and the horizontal curve's points. Also sets
     each line's ``crossings``: the number of agreeing crossings of each of its intervals (a
     mislabelled edge line meets the other family nowhere within ``crossing_tol``), and its
     ``validated`` runs of at least ``min_run`` agreeing crossings (:func:`_validated_runs`).
+    The line curves are validated at ``crossing_tol`` itself, the cells at the tolerance
+    scaled for obliquity (``viewpoint``): teapot demo scan, Gordon coverage 77.3 -> 83.4 %,
+    Gordon mean 0.0067 -> 0.0088 mm, max 0.038 -> 0.047 mm (``min_cos`` 0.5: 81.9 % and
+    0.0082 mm); scaled for the line curves as well, the worst vertical line curve went from
+    0.039 to 0.050 mm (one on the lid's rim), so they keep the nominal test.
 
     Parameters
     ----------
     crossing_tol : float
-        Largest distance (mm) of the two curves at a crossing.
+        Largest distance (mm) of the two curves at a crossing (where the surface faces the
+        ``viewpoint``).
+    viewpoint : array_like (3,), optional
+        The camera centre (frame of the curves). With it the tolerance at a crossing is
+        ``crossing_tol / max(cos, min_cos)``, ``cos`` between the viewing ray and the surface
+        normal (the cross product of the two curves' tangents): an edge seen obliquely is
+        located as exactly in the image, but that error stretches over ``1 / cos`` times the
+        length on the surface. Teapot demo view 0, crossings seen at ``cos`` 0.2-0.35: median
+        disagreement 0.21 camera pixel footprints against 0.06 where ``cos > 0.7``.
+    min_cos : float
+        Floor of ``cos`` (the tolerance grows at most ``1 / min_cos`` times).
     margin : float
         A crossing must lie at least this far (projector px) inside a covered interval.
     reach : float
@@ -271,18 +287,29 @@ def complete_cells(vlines: list[NetLine], hlines: list[NetLine], crossing_tol: f
     nv, nh = len(cv), len(ch)
     if nv < 2 or nh < 2:
         return np.zeros((max(nv - 1, 0), max(nh - 1, 0)), bool), np.zeros((nv, nh, 3))
-    Xv, segv = _crossings(vlines, ch, margin, reach)  # vertical i at v = c_j
-    Xh, segh = _crossings(hlines, cv, margin, reach)  # horizontal j at u = c_i
-    Xh = Xh.transpose(1, 0, 2)
+    Xv, Dv, segv = _crossings(vlines, ch, margin, reach)  # vertical i at v = c_j
+    Xh, Dh, segh = _crossings(hlines, cv, margin, reach)  # horizontal j at u = c_i
+    Xh, Dh = Xh.transpose(1, 0, 2), Dh.transpose(1, 0, 2)
     segh = segh.T
-    agree = np.linalg.norm(Xv - Xh, axis=2) < crossing_tol
+    tol = crossing_tol
+    if viewpoint is not None:
+        # the surface normal from the two curves' tangents, against the viewing ray
+        nrm = np.cross(Dv, Dh)
+        ray = 0.5 * (Xv + Xh) - np.asarray(viewpoint, float)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cos = np.abs(np.einsum("ijk,ijk->ij", nrm, ray)) / (
+                np.linalg.norm(nrm, axis=2) * np.linalg.norm(ray, axis=2))
+        tol = crossing_tol / np.maximum(np.nan_to_num(cos, nan=1.0), min_cos)
+    agree = np.linalg.norm(Xv - Xh, axis=2) < tol
     X = 0.5 * (Xv + Xh)
     # a cell's four sides must lie in one covered interval of their line
     same_v = (segv[:, :-1] >= 0) & (segv[:, :-1] == segv[:, 1:])  # (nv, nh-1)
     same_h = (segh[:-1, :] >= 0) & (segh[:-1, :] == segh[1:, :])  # (nv-1, nh)
     ok = agree[:-1, :-1] & agree[1:, :-1] & agree[:-1, 1:] & agree[1:, 1:]
     ok &= same_v[:-1, :] & same_v[1:, :] & same_h[:, :-1] & same_h[:, 1:]
-    good = agree & (segv >= 0) & (segh >= 0)
+    # the line curves are validated at the nominal tolerance: a curve record claims its
+    # stretch is confirmed by the other family to within crossing_tol
+    good = (np.linalg.norm(Xv - Xh, axis=2) < crossing_tol) & (segv >= 0) & (segh >= 0)
     for i, ln in enumerate(vlines):
         ln.crossings = np.bincount(segv[i][good[i]], minlength=len(ln.starts))
         ln.validated = _validated_runs(ch, segv[i], good[i], min_run)
@@ -523,7 +550,7 @@ def line_curves(vlines, hlines) -> list[tuple[str, NetLine, NurbsCurve]]:
 
 def build_network(lines: list[Line3D], min_curves: int = 3, crossing_tol: float = 0.07,
                   gap: float = 13.0, jump: float = 0.3, knot_spacing: float = 16.0,
-                  reach: float = 4.0):
+                  reach: float = 4.0, viewpoint=None):
     """Network, complete cells and Gordon patches of one view.
 
     ``reach`` (projector px): how far a covered interval extends beyond its data along its
@@ -540,7 +567,7 @@ def build_network(lines: list[Line3D], min_curves: int = 3, crossing_tol: float 
         Complete cells.
     """
     vlines, hlines = build_lines(lines, gap=gap, jump=jump, knot_spacing=knot_spacing)
-    mask, X = complete_cells(vlines, hlines, crossing_tol, reach=reach)
+    mask, X = complete_cells(vlines, hlines, crossing_tol, reach=reach, viewpoint=viewpoint)
     patches = []
     if mask.size:
         for rect in rectangles(mask, max(min_curves - 1, 1)):

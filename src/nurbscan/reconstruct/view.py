@@ -73,7 +73,9 @@ def reconstruct_view(det, rig, pattern=None, *, min_curves: int = 3,
         calibrated from the images): 0.6 footprints, Gordon coverage 65.7 %, Gordon mean
         0.0047 mm; 1.2 footprints, 70.6 % and 0.0057 mm (with five-crossing validated runs,
         :func:`~nurbscan.reconstruct.network.complete_cells`, so that the line curves keep
-        their accuracy).
+        their accuracy). For the cells it grows where the surface is seen obliquely, by
+        ``1 / max(cos, 0.3)`` (the camera centre is the ``viewpoint`` of
+        :func:`~nurbscan.reconstruct.network.complete_cells`): 77.3 -> 83.4 %.
     pattern : Pattern, optional
         The projected grid: the largest gap bridged along an edge is ``2 pitch + band + 1``
         projector px (an edge is lost where a band of the other direction crosses it, and a
@@ -95,7 +97,8 @@ def reconstruct_view(det, rig, pattern=None, *, min_curves: int = 3,
         gap, spacing = 2.0 * pattern.pitch + pattern.band + 1.0, float(pattern.pitch)
     vl, hl, patches, mask = build_network(lines, min_curves=min_curves,
                                           crossing_tol=crossing_tol, gap=gap,
-                                          knot_spacing=spacing)
+                                          knot_spacing=spacing,
+                                          viewpoint=rig.camera.center)
     t2 = time.perf_counter()
     return ViewResult(lines=lines, vlines=vl, hlines=hl, patches=patches,
                       cells=(int(mask.sum()), int(mask.size)),
