@@ -484,6 +484,23 @@ def test_validated_runs_need_five_agreeing_crossings():
     assert _validated_runs(params, seg, good, min_crossings=3) == [(16.0, 42.0, 0)]
 
 
+def test_line_curves_need_a_curve_that_fits_its_data():
+    """A validated run needs its interval's curve to fit the samples (RMS within half the
+    crossing tolerance); the cells do not depend on it."""
+    cu = np.arange(100.0, 200, 16)
+    cv = np.arange(80.0, 180, 16)
+    V = [_netline("vertical", c, np.linspace(70, 190, 200)) for c in cu]
+    H = [_netline("horizontal", c, np.linspace(90, 210, 200)) for c in cv]
+    for ln in V + H:
+        ln.fit_rms = np.array([0.002])
+    V[2].fit_rms = np.array([0.05])
+    mask, _ = complete_cells(V, H, 0.07)
+    assert mask.all()
+    assert not V[2].validated and all(ln.validated for ln in V[:2] + V[3:] + H)
+    mask, _ = complete_cells(V, H, 0.07, max_fit_rms=1.0)
+    assert mask.all() and V[2].validated == [(cv[0], cv[-1], 0)]
+
+
 def test_cells_reach_past_the_data_ends():
     """Lines whose data stop 2 px short of their last crossing (the blurred corner of a band
     crossing) complete the last cells by their end tangents, and the patch stays exact."""
