@@ -162,6 +162,15 @@ def teapot_result(teapot):
     return detect_grid(v.grid, pat, v.white)
 
 
+def test_auto_sigma_per_band():
+    from nurbscan.detect.core import auto_sigma
+
+    assert auto_sigma(10.2) == pytest.approx(1.275)
+    assert auto_sigma(10.2, 10.0) == pytest.approx(1.02)
+    assert auto_sigma(40.0, 10.0) == 1.5 and auto_sigma(5.0, 10.0) == 0.8
+    assert auto_sigma(float("nan")) == 1.0
+
+
 def test_unpaired_lines_kept_on_request(teapot, teapot_result):
     """min_paired=0 keeps the labelled lines with no point paired across a band (measured at
     1280 x 960: 2218 -> 2299 lines, coverage 0.540 -> 0.549, labels 99.98 %, RMS 0.055 ->

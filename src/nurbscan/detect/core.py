@@ -834,8 +834,9 @@ def band_width_px(signal: np.ndarray, pattern, valid: np.ndarray | None = None) 
 FINE_BAND_PX = 4.0
 
 
-def auto_sigma(band_px: float) -> float:
-    """Edge filter scale for bands ``band_px`` wide: band / 8, clipped to [0.8, 1.5] px.
+def auto_sigma(band_px: float, per_band: float = 8.0) -> float:
+    """Edge filter scale for bands ``band_px`` wide: band / ``per_band`` (8), clipped to
+    [0.8, 1.5] px.
 
     Wide enough to average the noise, narrow enough that a band's two edges (and the gaps'
     edges) do not bias each other: the Gaussian tail of the neighbouring edge at distance
@@ -849,7 +850,7 @@ def auto_sigma(band_px: float) -> float:
     """
     if not np.isfinite(band_px):
         return 1.0
-    return float(np.clip(band_px / 8.0, 0.8, 1.5))
+    return float(np.clip(band_px / per_band, 0.8, 1.5))
 
 
 def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float | None = None,
@@ -873,7 +874,8 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                 collinear_unknown: bool = True, families: bool = True,
                 pool_gap: float = 2.0, pool_tol: float = 2.0, epipolar=None,
                 epipolar_radius: float = 2.0, epipolar_rounds: int = 2,
-                tail_residual: float | None = None, min_paired: int = 2) -> DetectionResult:
+                tail_residual: float | None = None, min_paired: int = 2,
+                sigma_per_band: float = 8.0) -> DetectionResult:
     """Find, trace and decode the grid's edge lines in one photograph.
 
     Parameters
@@ -889,6 +891,10 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     sigma : float, optional
         Scale of the Gaussian derivative filters across the edges, camera px; default
         :func:`auto_sigma` of the band width measured in a first pass.
+    sigma_per_band : float
+        The default ``sigma`` is the band width over this (:func:`auto_sigma`): a narrower
+        filter resolves more of the bands that the surface squeezes (``nurbscan
+        reconstruct`` uses 10: teapot demo scan, Gordon coverage 84.2 -> 86.2 %).
     sigma_along : float, optional
         Smoothing along the edges, camera px (default ``sigma``).
     threshold : float
@@ -1095,7 +1101,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     sig = nrm.signal
     band_px_est = band_width_px(sig, pattern, nrm.valid)
     if sigma is None:
-        sigma = auto_sigma(band_px_est)
+        sigma = auto_sigma(band_px_est, sigma_per_band)
     elif not sigma > 0:
         raise NurbscanError(f"sigma={sigma!r}: must be positive")
     # resolved bands (at least FINE_BAND_PX wide): the gaps beside a band can be sampled

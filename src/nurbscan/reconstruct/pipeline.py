@@ -138,11 +138,17 @@ def detect_options(rig) -> dict:
     72.5 -> 74.5 % (point filters; 83.4 -> 84.2 % for ``min_paired`` once the crossing test
     allowed for obliquity), Gordon mean 0.0061 -> 0.0065 mm; detection, views 0-1:
     coverage 0.743 -> 0.799 -> 0.805, RMS 0.10 -> 0.13 -> 0.16 px.
+
+    The edge filter is narrower than a plain detection's (band / 10 instead of band / 8,
+    1.0 px instead of 1.28 px on the teapot demo scan): it resolves more of the squeezed
+    bands at the bottom and on the lid, and the point noise it adds is averaged by the 3-D
+    curve fits. Gordon coverage 84.2 -> 86.2 % (fixed 0.9 px: 86.0 %, 1.1 px: 85.9 %),
+    Gordon mean 0.0089 -> 0.0084 mm.
     """
     return {"epipolar": functools.partial(other_coordinate, rig), "min_row_support": 0.0,
             "max_row_residual": 0.0, "keep_unsupported": True, "max_residual": 0.0,
             "refit_residual": 0.0, "end_residual": 0.0, "keep_partner": False,
-            "min_width": 0.0, "min_strength": 0.06, "min_paired": 0}
+            "min_width": 0.0, "min_strength": 0.06, "min_paired": 0, "sigma_per_band": 10.0}
 
 
 def _view_job(job: dict):
