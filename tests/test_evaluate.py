@@ -76,6 +76,22 @@ def test_table_against_exact_offsets(truth):
     assert f"{100 * ev['coverage']:.1f} %" in md
 
 
+def test_entity_errors_shared_with_a_second_process(truth):
+    """The samples measured in a spawned process give the same rows as in this one."""
+    from nurbscan.evaluate.table import entity_errors
+    from nurbscan.io.atomic import read_json
+    from nurbscan.simulate.scenes import scene_from_dict
+
+    spec = read_json(truth / "scene.json")
+    scene = scene_from_dict(spec)
+    one = entity_errors(_model(), scene)
+    two = entity_errors(_model(), scene, spec=spec, share=0.45)
+    for row in one:
+        for k in ("mean", "max", "view"):
+            assert np.array_equal(one[row][k], two[row][k]), (row, k)
+    assert one["gordon"]["mean"] == pytest.approx([0.01, 0.03], abs=1e-9)
+
+
 def test_evaluate_cli_files(truth, tmp_path, capsys):
     from nurbscan.cli import main
 

@@ -63,24 +63,43 @@ def _stats(per: np.ndarray, samples_max: float | None) -> dict:
             "max_sample_mm": samples_max}
 
 
-def entity_errors(model, scene, n: int = 100) -> dict:
+def _distance_job(spec: dict, points: np.ndarray) -> np.ndarray:
+    from ..simulate.scenes import scene_from_dict
+
+    return scene_from_dict(spec).closest_point(points)[1]
+
+
+def entity_errors(model, scene, n: int = 100, spec: dict | None = None,
+                  share: float = 0.0) -> dict:
     """Per-entity mean errors and sample maxima for every Table I row, and per view.
+
+    All rows' samples go to one closest-point query; with the scene's ``spec`` and ``share``
+    > 0 the first ``share`` of them is measured in a spawned process beside this one
+    (:func:`nurbscan._parallel.in_background`; the same exact distances).
 
     Returns
     -------
     dict row -> {"mean": (E,), "max": (E,), "view": (E,)} in mm.
     """
-    out = {}
+    out, parts = {}, []
     for row, (what, kind, _) in ROWS.items():
         items = model.curves_of(kind) if what == "curve" else model.surfaces_of(kind)
-        if not items:
-            out[row] = {"mean": np.zeros(0), "max": np.zeros(0), "view": np.zeros(0, int)}
-            continue
         key = "curve" if what == "curve" else "surface"
-        S = np.concatenate([sample_entity(what, it[key], n) for it in items])
-        d = scene.closest_point(S)[1].reshape(len(items), n)
-        out[row] = {"mean": d.mean(1), "max": d.max(1),
-                    "view": np.array([it["view"] for it in items])}
+        S = (np.concatenate([sample_entity(what, it[key], n) for it in items]) if items
+             else np.zeros((0, 3)))
+        parts.append((row, items, S))
+    S = np.concatenate([p[2] for p in parts])
+    cut = int(len(S) * share) if spec is not None else 0
+    job = in_background(_distance_job, spec, S[:cut]) if cut else None
+    d = scene.closest_point(S[cut:])[1] if cut < len(S) else np.zeros(0)
+    if job is not None:
+        d = np.concatenate([job(), d])
+    at = 0
+    for row, items, Sr in parts:
+        dr = d[at:at + len(Sr)].reshape(len(items), n)
+        at += len(Sr)
+        out[row] = {"mean": dr.mean(1), "max": dr.max(1) if len(items) else np.zeros(0),
+                    "view": np.array([it["view"] for it in items], dtype=int)}
     return out
 
 
@@ -181,7 +200,8 @@ def evaluate_model(model, truth_dir: str | os.PathLike, n_samples: int = 100,
     scene = scene_from_dict(spec)
     # which true points the views see (reads every view's truth) runs beside the entity errors
     seen_job = in_background(_visible_job, spec, truth, n_coverage, parallel=workers != 1)
-    errs = entity_errors(model, scene, n_samples)
+    # about half the samples in a second process (teapot demo: evaluate 17.8 -> 15.0 s)
+    errs = entity_errors(model, scene, n_samples, spec, share=0.45 if workers != 1 else 0.0)
     rows = {}
     for row, e in errs.items():
         st = _stats(e["mean"], float(e["max"].max()) if e["max"].size else None)
