@@ -98,7 +98,7 @@ def entity_errors(model, scene, n: int = 100, spec: dict | None = None,
     for row, items, Sr in parts:
         dr = d[at:at + len(Sr)].reshape(len(items), n)
         at += len(Sr)
-        out[row] = {"mean": dr.mean(1), "max": dr.max(1) if len(items) else np.zeros(0),
+        out[row] = {"mean": dr.mean(1), "max": dr.max(1),
                     "view": np.array([it["view"] for it in items], dtype=int)}
     return out
 

@@ -308,7 +308,8 @@ def complete_cells(vlines: list[NetLine], hlines: list[NetLine], crossing_tol: f
             cos = np.abs(np.einsum("ijk,ijk->ij", nrm, ray)) / (
                 np.linalg.norm(nrm, axis=2) * np.linalg.norm(ray, axis=2))
         tol = crossing_tol / np.maximum(np.nan_to_num(cos, nan=1.0), min_cos)
-    agree = np.linalg.norm(Xv - Xh, axis=2) < tol
+    dist = np.linalg.norm(Xv - Xh, axis=2)
+    agree = dist < tol
     X = 0.5 * (Xv + Xh)
     # a cell's four sides must lie in one covered interval of their line
     same_v = (segv[:, :-1] >= 0) & (segv[:, :-1] == segv[:, 1:])  # (nv, nh-1)
@@ -317,15 +318,12 @@ def complete_cells(vlines: list[NetLine], hlines: list[NetLine], crossing_tol: f
     ok &= same_v[:-1, :] & same_v[1:, :] & same_h[:, :-1] & same_h[:, 1:]
     # the line curves are validated at the nominal tolerance: a curve record claims its
     # stretch is confirmed by the other family to within crossing_tol
-    good = (np.linalg.norm(Xv - Xh, axis=2) < crossing_tol) & (segv >= 0) & (segh >= 0)
-    for i, ln in enumerate(vlines):
-        ln.crossings = np.bincount(segv[i][good[i]], minlength=len(ln.starts))
-        ln.validated = _fitting_runs(ln, _validated_runs(ch, segv[i], good[i], min_run),
-                                     max_fit_rms * crossing_tol)
-    for j, ln in enumerate(hlines):
-        ln.crossings = np.bincount(segh[:, j][good[:, j]], minlength=len(ln.starts))
-        ln.validated = _fitting_runs(ln, _validated_runs(cv, segh[:, j], good[:, j], min_run),
-                                     max_fit_rms * crossing_tol)
+    good = (dist < crossing_tol) & (segv >= 0) & (segh >= 0)
+    for lines, params, seg, gd in ((vlines, ch, segv, good), (hlines, cv, segh.T, good.T)):
+        for ln, sg, g in zip(lines, seg, gd, strict=True):
+            ln.crossings = np.bincount(sg[g], minlength=len(ln.starts))
+            ln.validated = _fitting_runs(ln, _validated_runs(params, sg, g, min_run),
+                                         max_fit_rms * crossing_tol)
     return ok, X
 
 
@@ -440,20 +438,13 @@ def _grow(mask: np.ndarray, free: np.ndarray, a: int, b: int, k: int):
     grown = True
     while grown:
         grown = False
-        for side in range(4):
-            if side == 0 and r0 > 0:
-                sl = (slice(r0 - 1, r0), slice(c0, c1))
-            elif side == 1 and r1 < R:
-                sl = (slice(r1, r1 + 1), slice(c0, c1))
-            elif side == 2 and c0 > 0:
-                sl = (slice(r0, r1), slice(c0 - 1, c0))
-            elif side == 3 and c1 < C:
-                sl = (slice(r0, r1), slice(c1, c1 + 1))
-            else:
+        for d0, d1, e0, e1 in ((-1, 0, 0, 0), (0, 1, 0, 0), (0, 0, -1, 0), (0, 0, 0, 1)):
+            n0, n1, m0, m1 = r0 + d0, r1 + d1, c0 + e0, c1 + e1
+            if n0 < 0 or m0 < 0 or n1 > R or m1 > C:
                 continue
-            if mask[sl].all() and free[sl].any():
-                r0, r1, c0, c1 = ((r0 - 1, r1, c0, c1), (r0, r1 + 1, c0, c1),
-                                  (r0, r1, c0 - 1, c1), (r0, r1, c0, c1 + 1))[side]
+            # the added row or column is complete and brings a free cell
+            if mask[n0:n1, m0:m1].all() and free[n0:n1, m0:m1].sum() > free[r0:r1, c0:c1].sum():
+                r0, r1, c0, c1 = n0, n1, m0, m1
                 grown = True
     return r0, r1, c0, c1
 
