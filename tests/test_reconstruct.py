@@ -23,7 +23,13 @@ from nurbscan.reconstruct.light import (
     paper_light_surface,
 )
 from nurbscan.reconstruct.merge import curve_to_object, rig_to_object
-from nurbscan.reconstruct.network import NetLine, complete_cells, gordon_patch, rectangles
+from nurbscan.reconstruct.network import (
+    NetLine,
+    complete_cells,
+    gordon_patch,
+    patch_extents,
+    rectangles,
+)
 from nurbscan.reconstruct.triangulate import lstsq_spline
 from nurbscan.simulate.rig import default_rig
 
@@ -531,3 +537,79 @@ def test_cells_reach_past_the_data_ends():
     assert np.allclose(ext[1], c.evaluate(np.array([hi]))[0] + 3.0 * d1)
     # a line that does not reach within 4 px stays short
     assert not complete_cells(V, H, reach=1.5)[0][-1, :].any()
+
+
+def _true_error(p, n=25):
+    (a0, a1), (b0, b1) = p.gordon.domain
+    uu, vv = np.meshgrid(np.linspace(a0, a1, n), np.linspace(b0, b1, n), indexing="ij")
+    G = p.gordon.evaluate(uu.ravel(), vv.ravel())
+    return float(np.max(np.linalg.norm(G - _surface(uu.ravel(), vv.ravel()), axis=1)))
+
+
+def test_patch_reaches_as_far_as_its_side_curves_go():
+    """Horizontal lines lost beyond the rectangle (an occluding contour, a shadow) while the
+    vertical ones go on: the patch reaches to their data ends (less the margin), at most to
+    the next horizontal line; the added strip follows the true surface."""
+    cu = np.sort(np.r_[np.arange(100.0, 230, 16), np.arange(106.0, 230, 16)])
+    cv = np.sort(np.r_[np.arange(80.0, 200, 16), np.arange(86.0, 200, 16)])
+    top = 139.0  # vertical data stop 5 px past the horizontal line at 134 (next at 144)
+    V = [_netline("vertical", c, np.linspace(70, top, 300)) for c in cu]
+    H = [_netline("horizontal", c, np.linspace(90, 240, 300)) for c in cv]
+    mask, _ = complete_cells(V, H, reach=0.0)
+    j1 = int(np.searchsorted(cv, 134.0))
+    assert mask[:, :j1].all() and not mask[:, j1:].any()
+    rect = rectangles(mask, 2)[0]
+    assert rect == (0, len(cu) - 1, 0, j1)
+    du0, du1, dv0, dv1 = patch_extents(V, H, rect, mask, margin=1.0)
+    # horizontal data run 10 / 12 px past the first / last vertical curve, the vertical ones
+    # 10 px below the first horizontal curve: all reach to their data less 1 px
+    assert (du0, du1, dv0) == pytest.approx((9.0, 11.0, 9.0))
+    assert dv1 == pytest.approx(top - 1.0 - 134.0)
+    p = gordon_patch(V, H, rect, extend=(du0, du1, dv0, dv1))
+    assert p.horizontal == pytest.approx((cv[0] - 9.0, top - 1.0))
+    assert p.vertical == pytest.approx((cu[0] - 9.0, cu[-1] + 11.0))
+    assert p.n_curves == (len(cu), j1 + 1)
+    # 0.0039 mm, at the corners of two extended sides (0.033 mm without the twist term)
+    assert _true_error(p) < 5e-3
+    # the real curves are still interpolated
+    w = np.linspace(cv[0] - 9.0, top - 1.0, 40)
+    on_v = p.gordon.evaluate(np.full(40, cu[2]), w)
+    assert np.max(np.linalg.norm(on_v - V[2].curves[0].evaluate(w), axis=1)) < 1e-4
+    # no reach beyond the next line: data that go on to 160 stop at 144 - 1
+    V2 = [_netline("vertical", c, np.linspace(70, 160, 300)) for c in cu]
+    assert patch_extents(V2, H, rect, mask, margin=1.0)[3] == pytest.approx(143.0 - 134.0)
+    # nor across a data gap wider than max_gap
+    V3 = [_netline("vertical", c, np.r_[np.linspace(70, 135, 250), np.linspace(141, 160, 50)])
+          for c in cu]
+    assert patch_extents(V3, H, rect, mask, margin=1.0, max_gap=4.0)[3] == pytest.approx(0.0)
+    assert patch_extents(V3, H, rect, mask, margin=1.0, max_gap=8.0)[3] == pytest.approx(9.0)
+    # nor with samples its curve does not follow: a step at 136 stops the walk before it
+    V4 = [_netline("vertical", c, np.linspace(70, 160, 300)) for c in cu]
+    k = np.searchsorted(V4[3].w, 136.0)
+    V4[3].points[k:] += [0.0, 0.0, 0.5]
+    assert patch_extents(V4, H, rect, mask, margin=1.0)[3] == pytest.approx(9.0)
+    assert patch_extents(V4, H, rect, mask, margin=1.0, max_res=0.07)[3] < 1.0
+    # a side whose next cells are complete (another rectangle's) is not extended
+    full = mask.copy()
+    full[:, j1] = True
+    assert patch_extents(V, H, rect, full, margin=1.0)[3] == 0.0
+
+
+def test_patch_corner_of_two_extended_sides():
+    """Both families run on past a corner: the corner is the Boolean sum of the two curves
+    next to it plus the last cell's twist, and the extended patch follows the true surface
+    there too (0.0016 mm; 0.035 mm without the twist term)."""
+    cu = np.sort(np.r_[np.arange(100.0, 200, 16), np.arange(106.0, 200, 16)])
+    cv = np.sort(np.r_[np.arange(80.0, 180, 16), np.arange(86.0, 180, 16)])
+    V = [_netline("vertical", c, np.linspace(70, 186, 300)) for c in cu]
+    H = [_netline("horizontal", c, np.linspace(90, 206, 300)) for c in cv]
+    rect = (0, len(cu) - 3, 0, len(cv) - 3)  # lines beyond it exist but are left out
+    ext = patch_extents(V, H, rect, None, margin=1.0)
+    assert ext[1] == pytest.approx(cu[-2] - cu[-3] - 1.0)
+    assert ext[3] == pytest.approx(cv[-2] - cv[-3] - 1.0)
+    p = gordon_patch(V, H, rect, extend=ext)
+    assert _true_error(p) < 3e-3
+    # the corner point itself
+    corner = p.gordon.evaluate(np.array([p.vertical[1]]), np.array([p.horizontal[1]]))[0]
+    assert np.linalg.norm(corner - _surface(p.vertical[1], p.horizontal[1])) < 3e-3
+

@@ -36,6 +36,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import make_interp_spline
 
 from ..nurbs import NurbsCurve, NurbsSurface
 from ..nurbs.basis import averaging_knots, basis_matrix
@@ -470,40 +471,169 @@ class Patch:
 def _resample(ln: NetLine, a: float, b: float, n: int, reach: float = 0.0
               ) -> tuple[np.ndarray, np.ndarray]:
     """``n`` samples of the line's 3-D curve (the interval covering [a, b]) on [a, b]."""
+    return np.linspace(a, b, n), _sample(ln, a, b, reach)(np.linspace(a, b, n))
+
+
+def _sample(ln: NetLine, a: float, b: float, reach: float = 0.0):
+    """The line's 3-D curve covering [a, b] as a function of ``w`` (array -> (n, 3))."""
     k = int(_covers(ln, np.array([a]), np.array([b]), 0.0, reach)[0])
     if k < 0:  # the cell test guarantees coverage up to its margin: take the nearest interval
         k = int(np.argmin(np.abs(0.5 * (ln.starts + ln.ends) - 0.5 * (a + b))))
-    w = np.linspace(a, b, n)
-    return w, _evaluate(ln.curves[k], w)
+    return lambda w: _evaluate(ln.curves[k], np.atleast_1d(np.asarray(w, float)))
 
 
-def gordon_patch(vlines, hlines, rect, per_span: int = 6, reach: float = 0.0) -> Patch:
+def _data_range(ln: NetLine, a: float, b: float, reach: float, max_gap: float = np.inf,
+                max_res: float = np.inf) -> tuple[float, float]:
+    """Range (first, last ``w``) of the samples of ``ln`` that continue [a, b] without a gap.
+
+    Of the interval covering [a, b], the samples within ``max_res`` mm of its curve, followed
+    outwards from ``a`` and ``b`` until the next one is more than ``max_gap`` px away: an
+    interval may bridge a longer gap (an occlusion), and a sample its curve does not follow is
+    not data that continues the rectangle's side.
+    """
+    k = int(_covers(ln, np.array([a]), np.array([b]), 0.0, reach)[0])
+    if k < 0:
+        return a, b
+    sel = (ln.w >= ln.starts[k]) & (ln.w <= ln.ends[k])
+    w = ln.w[sel]
+    if np.isfinite(max_res):
+        w = w[np.linalg.norm(_evaluate(ln.curves[k], w) - ln.points[sel], axis=1) <= max_res]
+    out = []
+    for ahead in (np.sort(a - w[w < a]), np.sort(w[w > b] - b)):
+        far = np.diff(np.r_[0.0, ahead]) > max_gap
+        n = int(np.argmax(far)) if far.any() else len(ahead)
+        out.append(float(ahead[n - 1]) if n else 0.0)
+    return a - out[0], b + out[1]
+
+
+def patch_extents(vlines, hlines, rect, mask=None, reach: float = 0.0, margin: float = 1.0,
+                  max_gap: float = 10.0, max_res: float = np.inf, min_share: float = 0.3
+                  ) -> tuple[float, float, float, float]:
+    """How far (projector px) the rectangle's patch may reach beyond its first and last curves.
+
+    A rectangle of complete cells ends where the next cell is not complete: at an occluding
+    contour, a shadow or a grazing view the line of the other direction beyond it is lost, but
+    the rectangle's side curves often go on. Beyond the last horizontal curve ``c_j1`` the
+    patch may reach as far as every vertical curve of the rectangle still has data
+    (:func:`_data_range`: samples no more than ``max_gap`` px apart and within ``max_res`` mm
+    of the curve), less ``margin`` px, and at most to the next horizontal line less ``margin``
+    and one pitch (the rectangle's last two cells); likewise on the other three sides. A side
+    whose next cells are all complete (``mask``: another rectangle's) is not extended, nor one
+    that would gain less than ``min_share`` of its last cell.
+
+    Returns
+    -------
+    (du0, du1, dv0, dv1) : floats >= 0
+        Reach below ``c_i0``, above ``c_i1``, below ``c_j0`` and above ``c_j1``, px.
+    """
+    i0, i1, j0, j1 = rect
+    opts = (reach, margin, max_gap, max_res, min_share)
+    # vertical curves i0..i1 run on in v beyond the horizontal curves j0, j1; the next cells
+    # there are mask[i0:i1, j0 - 1] and mask[i0:i1, j1] (transposed for the u sides)
+    dv = _side_extents(vlines[i0:i1 + 1], [ln.coord for ln in hlines], j0, j1,
+                       None if mask is None else np.asarray(mask)[i0:i1].T, *opts)
+    du = _side_extents(hlines[j0:j1 + 1], [ln.coord for ln in vlines], i0, i1,
+                       None if mask is None else np.asarray(mask)[:, j0:j1], *opts)
+    return du[0], du[1], dv[0], dv[1]
+
+
+def _side_extents(sides, coords, a0: int, a1: int, next_cells, reach, margin, max_gap,
+                  max_res, min_share) -> list[float]:
+    """Reach below ``coords[a0]`` and above ``coords[a1]`` of the curves ``sides`` (one family,
+    crossing the other family's lines at ``coords``); ``next_cells[k]``: the cells between
+    ``coords[k]`` and ``coords[k + 1]`` along the rectangle (see :func:`patch_extents`)."""
+    c = np.asarray(coords, float)
+    lo, hi = c[a0], c[a1]
+    rng = np.array([_data_range(ln, lo, hi, reach, max_gap, max_res) for ln in sides])
+    pitch = (c[min(a0 + 2, a1)] - lo, hi - c[max(a1 - 2, a0)]) if a1 - a0 >= 2 else (
+        2 * (c[a0 + 1] - lo), 2 * (hi - c[a1 - 1]))
+    out = []
+    for end, room, cell, span, nxt, adj in (
+            (lo, lo - rng[:, 0].max() - margin, c[a0 + 1] - lo, pitch[0], a0 - 1, a0 - 1),
+            (hi, rng[:, 1].min() - margin - hi, hi - c[a1 - 1], pitch[1], a1 + 1, a1)):
+        t = min(room, span)
+        if 0 <= nxt < len(c):
+            t = min(t, abs(c[nxt] - end) - margin)
+            if next_cells is not None and next_cells[adj].all():
+                t = 0.0
+        out.append(float(t) if t >= min_share * cell else 0.0)
+    return out
+
+
+def gordon_patch(vlines, hlines, rect, per_span: int = 6, reach: float = 0.0,
+                 extend: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)) -> Patch:
     """Skins and Gordon surface of one rectangle ``(i0, i1, j0, j1)`` of cells.
 
     Each curve segment is re-approximated on the patch's knots from ``per_span`` samples per
     knot span of its line's 3-D curve (so that gaps in the edge data, e.g. where a band of the
     other direction crosses, leave no span without data).
+
+    ``extend`` = ``(du0, du1, dv0, dv1)`` (px, :func:`patch_extents`) lets the patch reach
+    beyond its first and last curves. A virtual curve closes each extended side: beyond the
+    last horizontal curve, at ``v* = c_j1 + dv1``, it interpolates the vertical curves' points
+    at ``v*`` (cubic in ``u``, not-a-knot). Where two extended sides meet, the corner point is
+    the Boolean sum of the two real curves next to it, ``H_j1(u*) + V_i1(v*) - X_i1,j1``, plus
+    the twist of the last real cell times ``du dv`` (exact for a surface of bilinear twist; no
+    curve is extrapolated). In the added strip the Gordon
+    surface thus interpolates the vertical curves' data, and the horizontal skin's correction
+    ``L1 - T`` is carried on from the last real horizontal curve. ``n_curves`` counts the real
+    curves; ``vertical`` and ``horizontal`` give the extended domain.
     """
     i0, i1, j0, j1 = rect
     V = vlines[i0:i1 + 1]
     H = hlines[j0:j1 + 1]
-    cu = np.array([ln.coord for ln in V])
-    cv = np.array([ln.coord for ln in H])
+    cu_r = np.array([ln.coord for ln in V])
+    cv_r = np.array([ln.coord for ln in H])
+    du0, du1, dv0, dv1 = (float(x) for x in extend)
+    cu = np.r_[[cu_r[0] - du0] if du0 > 0 else [], cu_r, [cu_r[-1] + du1] if du1 > 0 else []]
+    cv = np.r_[[cv_r[0] - dv0] if dv0 > 0 else [], cv_r, [cv_r[-1] + dv1] if dv1 > 0 else []]
+    ou, ov = int(du0 > 0), int(dv0 > 0)  # offset of the real curves
+    vfun = [_sample(ln, cv[0], cv[-1], reach) for ln in V]
+    hfun = [_sample(ln, cu[0], cu[-1], reach) for ln in H]
+    # virtual curves: interpolate the other family's points across the patch (cubic,
+    # not-a-knot); a corner of two extended sides is the Boolean sum of the two real end
+    # curves, H(u*) + V(v*) - X, with no extrapolation
+    iu = [i for i in range(len(cu)) if not ou <= i < ou + len(cu_r)]
+    jv = [j for j in range(len(cv)) if not ov <= j < ov + len(cv_r)]
+
+    def near(k, n, off):  # index of the real curve next to virtual index k
+        return off if k == 0 else off + n - 1
+
+    def cross(i, j):  # crossing of the real curves i, j (indices into cu, cv)
+        return 0.5 * (hfun[j - ov](cu[i])[0] + vfun[i - ou](cv[j])[0])
+
+    def point(i, j):
+        if i not in iu:
+            return vfun[i - ou](cv[j])[0]
+        if j not in jv:
+            return hfun[j - ov](cu[i])[0]
+        # Boolean sum plus the twist of the last real cell (exact for a bilinear twist)
+        i_n, j_n = near(i, len(cu_r), ou), near(j, len(cv_r), ov)
+        i_b, j_b = i_n + (1 if i == 0 else -1), j_n + (1 if j == 0 else -1)
+        twist = (cross(i_n, j_n) - cross(i_b, j_n) - cross(i_n, j_b) + cross(i_b, j_b)) * (
+            (cu[i] - cu[i_n]) * (cv[j] - cv[j_n]) / ((cu[i_n] - cu[i_b]) * (cv[j_n] - cv[j_b])))
+        return (hfun[j_n - ov](cu[i])[0] + vfun[i_n - ou](cv[j])[0] - cross(i_n, j_n)
+                + twist)
+
+    def spline(x, pts):
+        return make_interp_spline(x, np.array(pts), k=min(3, len(x) - 1))
+
+    hv = {j: spline(cu, [point(i, j) for i in range(len(cu))]) for j in jv}
+    vv = {i: spline(cv, [point(i, j) for j in range(len(cv))]) for i in iu}
+    hfun = [hv[j] if j in hv else hfun[j - ov] for j in range(len(cv))]
+    vfun = [vv[i] if i in vv else vfun[i - ou] for i in range(len(cu))]
     nI, nJ = len(cu), len(cv)
     p, q = min(3, nI - 1), min(3, nJ - 1)
     Ku, Kv = averaging_knots(cu, p), averaging_knots(cv, q)
     Bu = basis_matrix(cu, p, Ku, nI)
     Bv = basis_matrix(cv, q, Kv, nJ)
+    wu, wv = np.linspace(cu[0], cu[-1], per_span * nI), np.linspace(cv[0], cv[-1], per_span * nJ)
     Qh = np.empty((nJ, nI, 3))  # control points of horizontal curves (in u)
-    for j, ln in enumerate(H):
-        w, P = _resample(ln, cu[0], cu[-1], per_span * nI, reach)
-        c = lstsq_spline(w, P, Ku, degree=p, smooth=1e-9)
-        Qh[j] = c.control_points
+    for j, f in enumerate(hfun):
+        Qh[j] = lstsq_spline(wu, np.atleast_2d(f(wu)), Ku, degree=p, smooth=1e-9).control_points
     Qv = np.empty((nI, nJ, 3))
-    for i, ln in enumerate(V):
-        w, P = _resample(ln, cv[0], cv[-1], per_span * nJ, reach)
-        c = lstsq_spline(w, P, Kv, degree=q, smooth=1e-9)
-        Qv[i] = c.control_points
+    for i, f in enumerate(vfun):
+        Qv[i] = lstsq_spline(wv, np.atleast_2d(f(wv)), Kv, degree=q, smooth=1e-9).control_points
     # grid points: mean of the two segment fits at the crossing
     Xh = np.einsum("ui,jic->ujc", Bu, Qh)  # horizontal j at u = c_i -> (nI, nJ, 3)
     Xv = np.einsum("vj,ijc->ivc", Bv, Qv)  # vertical i at v = c_j -> (nI, nJ, 3)
@@ -521,7 +651,8 @@ def gordon_patch(vlines, hlines, rect, per_span: int = 6, reach: float = 0.0) ->
     G = NurbsSurface(p, q, Ku, Kv, P1 + P2 - PT)
     return Patch(index=(int(i0), int(i1), int(j0), int(j1)),
                  vertical=(float(cu[0]), float(cu[-1])),
-                 horizontal=(float(cv[0]), float(cv[-1])), n_curves=(nI, nJ),
+                 horizontal=(float(cv[0]), float(cv[-1])),
+                 n_curves=(len(cu_r), len(cv_r)),
                  horizontal_skin=L1, vertical_skin=L2, gordon=G, crossings=Xg)
 
 
@@ -558,7 +689,8 @@ def line_curves(vlines, hlines) -> list[tuple[str, NetLine, NurbsCurve]]:
 
 def build_network(lines: list[Line3D], min_curves: int = 3, crossing_tol: float = 0.07,
                   gap: float = 13.0, jump: float = 0.3, knot_spacing: float = 16.0,
-                  reach: float = 4.0, viewpoint=None):
+                  reach: float = 4.0, viewpoint=None, extend: bool = True,
+                  extend_gap: float = 10.0):
     """Network, complete cells and Gordon patches of one view.
 
     ``reach`` (projector px): how far a covered interval extends beyond its data along its
@@ -566,6 +698,16 @@ def build_network(lines: list[Line3D], min_curves: int = 3, crossing_tol: float 
     stop a camera pixel or two short of the band crossings at the ends of its intervals, so
     without it the last cell before a data end is always lost. Teapot demo scan: Gordon
     coverage 73.2 -> 74.5 % (2 px: 73.4 %, 6 px: 74.4 %).
+
+    With ``extend`` each patch reaches beyond its rectangle as far as its side curves go on
+    (:func:`patch_extents`, samples at most ``extend_gap`` px apart and within
+    ``crossing_tol`` of their curve; :func:`gordon_patch`). Teapot demo scan: Gordon coverage
+    86.2 -> 89.3 %, Gordon mean 0.0084 -> 0.0111 mm, the largest patch mean 0.052 -> 0.051
+    mm; the largest single sample distance 0.21 -> 0.63 mm, on strips along silhouettes.
+    Tried and not kept: no strip where a crossing with the next line disagrees (87.3 %);
+    no strip seen at ``cos < 0.3`` (87.4 %) or that departs from the unextended patch's
+    continuation by more than ``crossing_tol`` (86.8 %); a corner extrapolated from one
+    family's virtual curve (samples up to 2.7 mm off).
 
     Returns
     -------
@@ -579,9 +721,11 @@ def build_network(lines: list[Line3D], min_curves: int = 3, crossing_tol: float 
     patches = []
     if mask.size:
         for rect in rectangles(mask, max(min_curves - 1, 1)):
-            patches.append(gordon_patch(vlines, hlines, rect, reach=reach))
+            ext = (patch_extents(vlines, hlines, rect, mask, reach, max_gap=extend_gap,
+                                 max_res=crossing_tol) if extend else (0.0, 0.0, 0.0, 0.0))
+            patches.append(gordon_patch(vlines, hlines, rect, reach=reach, extend=ext))
     return vlines, hlines, patches, mask
 
 
 __all__ = ["NetLine", "Patch", "build_lines", "complete_cells", "rectangles", "gordon_patch",
-           "build_network", "line_curves", "NurbsCurve"]
+           "patch_extents", "build_network", "line_curves", "NurbsCurve"]
