@@ -156,8 +156,10 @@ def _view_job(job: dict):
     from ..detect import detect_grid
 
     t0 = time.perf_counter()
-    grid = read_image(job["grid"])
-    white = read_image(job["white"]) if job["white"] is not None else None
+    # the file's own integer type: detect linearises it by table look-up (7.1 MP teapot view:
+    # 1.5 s instead of 2.4-2.8 s from float32 input, the same lines)
+    grid = read_image(job["grid"], as_float=False)
+    white = read_image(job["white"], as_float=False) if job["white"] is not None else None
     t1 = time.perf_counter()
     det = detect_grid(grid, job["pattern"], white, **detect_options(job["rig"]))
     t2 = time.perf_counter()
