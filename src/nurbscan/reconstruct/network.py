@@ -475,9 +475,14 @@ class Patch:
     crossings: np.ndarray  # (I, J, 3)
 
 
+def _interval(ln: NetLine, a: float, b: float, reach: float) -> int:
+    """Index of the interval of ``ln`` covering [a, b] (:func:`_covers`, no margin), or -1."""
+    return int(_covers(ln, np.array([a]), np.array([b]), 0.0, reach)[0])
+
+
 def _sample(ln: NetLine, a: float, b: float, reach: float = 0.0):
     """The line's 3-D curve covering [a, b] as a function of ``w`` (array -> (n, 3))."""
-    k = int(_covers(ln, np.array([a]), np.array([b]), 0.0, reach)[0])
+    k = _interval(ln, a, b, reach)
     if k < 0:  # the cell test guarantees coverage up to its margin: take the nearest interval
         k = int(np.argmin(np.abs(0.5 * (ln.starts + ln.ends) - 0.5 * (a + b))))
     return lambda w: _evaluate(ln.curves[k], np.atleast_1d(np.asarray(w, float)))
@@ -492,7 +497,7 @@ def _data_range(ln: NetLine, a: float, b: float, reach: float, max_gap: float = 
     interval may bridge a longer gap (an occlusion), and a sample its curve does not follow is
     not data that continues the rectangle's side.
     """
-    k = int(_covers(ln, np.array([a]), np.array([b]), 0.0, reach)[0])
+    k = _interval(ln, a, b, reach)
     if k < 0:
         return a, b
     sel = (ln.w >= ln.starts[k]) & (ln.w <= ln.ends[k])

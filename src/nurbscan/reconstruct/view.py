@@ -81,7 +81,8 @@ def reconstruct_view(det, rig, pattern=None, *, min_curves: int = 3,
         projector px (an edge is lost where a band of the other direction crosses it, and a
         chain between two crossings may be missing), the 3-D curves' knot spacing is the
         pitch, and a patch reaches past its rectangle over samples at most ``band + 4`` px
-        apart (the gap a crossing band leaves; defaults 39, 16 and 10 px: the default grid).
+        apart (the gap a crossing band leaves); without it the default grid's pitch 16 and
+        band 6 px.
     knot_spacing : float
         Knot spacing of the 2-D curve fits, camera px.
     """
@@ -93,13 +94,10 @@ def reconstruct_view(det, rig, pattern=None, *, min_curves: int = 3,
         depth = float(np.median(np.concatenate(pts)[:, 2])) if pts else 600.0
         cam = rig.camera
         crossing_tol = 1.2 * depth * float(cam.dy) / float(cam.f)
-    gap, spacing, band = 39.0, 16.0, 6.0
-    if pattern is not None:
-        gap, spacing = 2.0 * pattern.pitch + pattern.band + 1.0, float(pattern.pitch)
-        band = float(pattern.band)
+    pitch, band = (16.0, 6.0) if pattern is None else (float(pattern.pitch), float(pattern.band))
     vl, hl, patches, mask = build_network(lines, min_curves=min_curves,
-                                          crossing_tol=crossing_tol, gap=gap,
-                                          knot_spacing=spacing,
+                                          crossing_tol=crossing_tol,
+                                          gap=2.0 * pitch + band + 1.0, knot_spacing=pitch,
                                           viewpoint=rig.camera.center,
                                           extend_gap=band + 4.0)
     t2 = time.perf_counter()
