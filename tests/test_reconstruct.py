@@ -595,6 +595,55 @@ def test_patch_reaches_as_far_as_its_side_curves_go():
     assert patch_extents(V, H, rect, full, margin=1.0)[3] == 0.0
 
 
+def _split_line(direction, c, w, gap):
+    """A NetLine with no data inside ``gap`` (two intervals, one curve each)."""
+    a, b = w[w <= gap[0]], w[w >= gap[1]]
+    la, lb = _netline(direction, c, a), _netline(direction, c, b)
+    return NetLine(direction, float(c), 0, 0, np.r_[a, b], np.r_[la.points, lb.points],
+                   np.array([a[0], b[0]]), np.array([a[-1], b[-1]]), la.curves + lb.curves)
+
+
+def test_cell_with_one_side_missing():
+    """A vertical line has a gap in its data from 110 to 130 px, across the horizontal lines
+    at 112 and 128: it covers none of its three spans from 96 to 144 px, and the six cells
+    beside them miss one side each. With
+    ``one_side_missing`` they are complete, the patch closes the side through the crossings
+    and follows the true surface; a corner only one line covers must lie ``own_margin``
+    inside that line's data, and a cell missing two sides stays out."""
+    cu = np.arange(100.0, 260, 16)
+    cv = np.arange(80.0, 240, 16)
+    V = [_netline("vertical", c, np.linspace(70, 250, 300)) for c in cu]
+    H = [_netline("horizontal", c, np.linspace(90, 270, 300)) for c in cv]
+    V[4] = _split_line("vertical", cu[4], np.linspace(70, 250, 300), (110.0, 130.0))
+    assert cv[2] == 112.0 and cv[3] == 128.0
+    mask, _ = complete_cells(V, H)
+    assert not mask[3:5, 1:4].any() and mask.sum() == mask.size - 6
+    mask, _ = complete_cells(V, H, one_side_missing=True)
+    assert mask.all()
+    rect = rectangles(mask, 2)[0]
+    assert rect == (0, len(cu) - 1, 0, len(cv) - 1)
+    p = gordon_patch(V, H, rect)
+    assert _true_error(p) < 1e-3
+    # the missing side: the cubic through the crossings, on the true surface
+    w = np.linspace(cv[1], cv[4], 20)
+    side = p.gordon.evaluate(np.full(20, cu[4]), w)
+    assert np.max(np.linalg.norm(side - _surface(np.full(20, cu[4]), w), axis=1)) < 1e-3
+    # the real curves are still interpolated, the split line on its data too
+    for ln, ww in ((V[3], np.linspace(cv[0], cv[-1], 40)), (V[4], np.linspace(cv[0], 108, 20))):
+        on = p.gordon.evaluate(np.full(len(ww), ln.coord), ww)
+        k = 0 if ww[-1] <= ln.ends[0] else len(ln.curves) - 1
+        assert np.max(np.linalg.norm(on - ln.curves[k].evaluate(ww), axis=1)) < 1e-4
+    # the horizontal line at 112 ends 5 px past the gap's line: the corner (cu[4], 112) is
+    # then too near its data end for own_margin 16 px, not for 4 px
+    H2 = list(H)
+    H2[2] = _netline("horizontal", cv[2], np.linspace(90, cu[4] + 5.0, 200))
+    m16, _ = complete_cells(V, H2, one_side_missing=True)
+    m4, _ = complete_cells(V, H2, one_side_missing=True, own_margin=4.0)
+    assert not m16[3, 2] and m4[3, 2]
+    # the cell right of the gap misses two sides (V[4] and H2[2] beyond cu[4] + 5)
+    assert not m4[4, 2] and not m4[4, 1]
+
+
 def test_patch_corner_of_two_extended_sides():
     """Both families run on past a corner: the corner is the Boolean sum of the two curves
     next to it plus the last cell's twist, and the extended patch follows the true surface
