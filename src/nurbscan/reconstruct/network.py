@@ -551,14 +551,11 @@ def _fill_gaps(V, H, cu, cv, reach: float):
     """
     cu, cv = np.asarray(cu, float), np.asarray(cv, float)
 
-    def nodes_values(ln, nodes):  # at each node: the curve of a covered span next to it
-        k = _covers(ln, nodes[:-1], nodes[1:], 1.0, reach)
+    def nodes_values(ln, nodes):  # the line's points at the crossings it covers (as in
+        k = _covers(ln, nodes, nodes, 1.0, reach)  # complete_cells), NaN elsewhere
         out = np.full((len(nodes), 3), np.nan)
-        for n in range(len(nodes)):
-            for sp in (n, n - 1):
-                if 0 <= sp < len(k) and k[sp] >= 0:
-                    out[n] = _evaluate(ln.curves[k[sp]], nodes[n:n + 1])[0]
-                    break
+        for s in np.unique(k[k >= 0]):
+            out[k == s] = _evaluate(ln.curves[s], nodes[k == s])
         return out
 
     Xv = np.stack([nodes_values(ln, cv) for ln in V])  # (I, J, 3)
