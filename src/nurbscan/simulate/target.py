@@ -236,7 +236,7 @@ FREE_POSES = (
 )
 
 #: Table angles (degrees) of the turntable poses (board on a stand on the table).
-TABLE_POSE_ANGLES = (-40.0, -20.0, 0.0, 20.0, 40.0)
+TABLE_POSE_ANGLES = (-40.0, 0.0, 40.0)
 
 
 def free_board_poses(board: Chessboard, aim: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
