@@ -87,6 +87,56 @@ def test_accuracy_labels_coverage_on_warped_view(pattern, view, result):
     assert ev["intersection_rms_px"] < 0.15, ev
 
 
+def test_coverage_apart_near_the_crossing_bands(pattern):
+    """A plane seen square on at 2 camera px per projector px, and a 'detection' of every
+    true edge sample except those within 1 projector px (2 camera px) of a crossing band:
+    the open coverage is 1, the corner coverage 0, and the corner zone is 2 of the gap's 10
+    projector px (an independent, analytic count)."""
+    h, w = 240, 320
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    ox, oy = 300.3, 200.7
+    truth = {"proj_x": ox + xx / 2, "proj_y": oy + yy / 2, "lit": np.ones((h, w), bool),
+             "surface_id": np.zeros((h, w), np.int32)}
+    gap = pattern.pitch - pattern.band
+
+    def open_rows(o, n, axis):  # pixel rows (columns) in a gap, 1 projector px from its ends
+        t = np.arange(n, dtype=np.float64)
+        q = np.mod(o + t / 2 - (pattern.offsets[axis] - 0.5), pattern.pitch) - pattern.band
+        return t[(q >= 1.0) & (q <= gap - 1.0)]
+
+    xs, ys, line, direction, band, edge, coord = [], [], [], [], [], [], []
+    for d, edges, o0, o1, n_along, n_across in ((0, pattern.vertical_edges, ox, oy, h, w),
+                                                (1, pattern.horizontal_edges, oy, ox, w, h)):
+        along = open_rows(o1, n_along, 1 - d)
+        for b in range(len(edges)):
+            for e in (0, 1):
+                a = (edges[b, e] - o0) * 2  # camera px across
+                if not 0 <= a <= n_across - 1:
+                    continue
+                xs.append(np.full(len(along), a) if d == 0 else along)
+                ys.append(along if d == 0 else np.full(len(along), a))
+                line.append(np.full(len(along), len(direction)))
+                direction.append(d)
+                band.append(b)
+                edge.append(e)
+                coord.append(edges[b, e])
+    counts = np.array([len(v) for v in xs])
+    z2 = np.zeros((0, 2))
+    r = DetectionResult(
+        image_size=(w, h), x=np.concatenate(xs), y=np.concatenate(ys),
+        strength=np.ones(counts.sum(), np.float32), line=np.concatenate(line),
+        direction=np.array(direction), band=np.array(band), edge=np.array(edge),
+        coord=np.array(coord), start=np.cumsum(counts) - counts, stop=np.cumsum(counts),
+        votes=np.full(len(band), 3), agreement=np.ones(len(band)), cam=z2, proj=z2,
+        cross_band=z2.astype(np.int64), cross_edge=z2.astype(np.int64),
+        cross_line=z2.astype(np.int64))
+    ev = evaluate_detection(r, truth, pattern, match_radius=0.4)
+    assert ev["corner_share"] == pytest.approx(2.0 / gap, abs=0.02), ev
+    assert ev["coverage_open"] > 0.99, ev
+    assert ev["coverage_corner"] < 0.01, ev
+    assert ev["coverage"] == pytest.approx(1.0 - ev["corner_share"], abs=0.01), ev
+
+
 def test_result_structure(pattern, result):
     r = result
     assert r.nlines > 1000

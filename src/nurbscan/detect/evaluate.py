@@ -59,8 +59,35 @@ def _nearest_edge(edges: np.ndarray, f: np.ndarray) -> np.ndarray:
     return o[pick]
 
 
-def evaluate_detection(result: DetectionResult, truth, pattern, match_radius: float = 1.0
-                       ) -> dict[str, float]:
+def _corner_distance(ff, oo, r, c, sub, ov, pattern, other: str) -> np.ndarray:
+    """Camera px along the edge from each true crossing to the nearest band of the other
+    direction (where the edge meets a crossing band's corner).
+
+    ``ff`` / ``oo``: the edge's and the other direction's projector coordinate fields in the
+    frame where the crossings were searched along axis 1; the crossing of row ``r`` lies at
+    column ``sub`` (between ``c`` and ``c + 1``) with the other coordinate ``ov``. The distance
+    in projector px to the nearest boundary of the other direction's bands, over the rate of
+    the other coordinate along the edge: ``|grad G . t|``, ``t`` the unit tangent of the edge
+    (perpendicular to ``grad F``), by differences of the fields.
+    """
+    a = 0 if other == "vertical" else 1
+    u = np.mod(ov - (pattern.offsets[a] - 0.5), pattern.pitch) - pattern.band
+    gap = pattern.pitch - pattern.band
+    dc = np.minimum(u, gap - u)  # projector px, inside the gap
+    n = ff.shape[0]
+    r0, r1 = np.clip(r - 1, 0, n - 1), np.clip(r + 1, 0, n - 1)
+    span = np.maximum(r1 - r0, 1)
+    fr = (ff[r1, c] - ff[r0, c]) / span
+    fc = ff[r, c + 1] - ff[r, c]
+    gr = (oo[r1, c] - oo[r0, c]) / span
+    gc = oo[r, c + 1] - oo[r, c]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rate = np.abs(gr * fc - gc * fr) / np.hypot(fr, fc)
+        return np.where(rate > 0, dc / rate, np.inf)
+
+
+def evaluate_detection(result: DetectionResult, truth, pattern, match_radius: float = 1.0,
+                       corner_px: float = 2.0) -> dict[str, float]:
     """Accuracy, labelling and coverage of a detection against the truth of its view.
 
     Parameters
@@ -72,6 +99,10 @@ def evaluate_detection(result: DetectionResult, truth, pattern, match_radius: fl
     match_radius : float
         Largest distance (camera px) from a true edge crossing to a detected point of the same
         label for the crossing to count as covered.
+    corner_px : float
+        The coverage is also given apart for the true edge within this distance (camera px,
+        along the edge) of a band of the other direction, where the edge meets the crossing
+        band's corner (``coverage_corner``), and the rest (``coverage_open``).
 
     Returns
     -------
@@ -82,7 +113,9 @@ def evaluate_detection(result: DetectionResult, truth, pattern, match_radius: fl
         ``wrong_lines_over_20px`` (lines longer than 20 px labelled wrongly), ``coverage``
         (share of the true, lit, visible edge length detected with the right label; a true
         edge is sampled where it crosses a pixel row (vertical-band edges) or column), ``true``
-        crossings, ``intersections`` and their ``intersection_rms_px``.
+        crossings, ``corner_share`` (share of them within ``corner_px`` of a crossing band),
+        ``coverage_corner`` and ``coverage_open`` (the coverage of those and of the others),
+        ``intersections`` and their ``intersection_rms_px``.
     """
     t = _load_truth(truth)
     fxf = np.asarray(t["proj_x"], np.float64)
@@ -137,7 +170,7 @@ def evaluate_detection(result: DetectionResult, truth, pattern, match_radius: fl
 
     span = max(w, h) + 10
     fam_det = result.point_direction * 100000 + result.point_band * 2 + result.point_edge
-    total = found = 0
+    total = found = n_corner = found_corner = 0
     for dd, f, edges, other, oname in ((0, fx0, pattern.vertical_edges, fy0, "horizontal"),
                                        (1, fy0, pattern.horizontal_edges, fx0, "vertical")):
         ff = f if dd == 0 else f.T
@@ -156,11 +189,13 @@ def evaluate_detection(result: DetectionResult, truth, pattern, match_radius: fl
         # visible: the other coordinate outside every band of the other direction
         ov = oo[r, c] + (oo[r, c + 1] - oo[r, c]) * (sub - c)
         vis = pattern.stripe_field(ov, oname) < 0
-        r, sub, ce = r[vis], sub[vis], ce[vis]
+        r, c, sub, ce, ov = r[vis], c[vis], sub[vis], ce[vis], ov[vis]
+        near = _corner_distance(ff, oo, r, c, sub, ov, pattern, oname) < corner_px
         # which (band, edge) is ce
         bi = _nearest_edge(edges, ce)
         fam = dd * 100000 + (bi // 2) * 2 + bi % 2
         total += len(r)
+        n_corner += int(near.sum())
         if not len(r):
             continue
         px_, py_ = (sub, r.astype(np.float64)) if dd == 0 else (r.astype(np.float64), sub)
@@ -170,9 +205,15 @@ def evaluate_detection(result: DetectionResult, truth, pattern, match_radius: fl
         det = np.c_[result.x[k] + fam_det[k] * span, result.y[k]]
         q = np.c_[px_ + fam * span, py_]
         dist_q, _ = cKDTree(det).query(q, distance_upper_bound=match_radius)
-        found += int(np.sum(np.isfinite(dist_q)))
+        hit = np.isfinite(dist_q)
+        found += int(np.sum(hit))
+        found_corner += int(np.sum(hit & near))
     out["true"] = float(total)
     out["coverage"] = float(found / total) if total else float("nan")
+    out["corner_share"] = float(n_corner / total) if total else float("nan")
+    out["coverage_corner"] = float(found_corner / n_corner) if n_corner else float("nan")
+    out["coverage_open"] = (float((found - found_corner) / (total - n_corner))
+                            if total > n_corner else float("nan"))
     # --- intersections
     n = len(result.cam)
     out["intersections"] = float(n)
