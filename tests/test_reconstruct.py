@@ -642,6 +642,39 @@ def test_cell_with_one_side_missing():
     assert not m16[3, 2] and m4[3, 2]
     # the cell right of the gap misses two sides (V[4] and H2[2] beyond cu[4] + 5)
     assert not m4[4, 2] and not m4[4, 1]
+    # a corner both lines cover must agree: the horizontal line at 112 lifted by 0.2 mm
+    H3 = list(H)
+    c = H[2].curves[0]
+    H3[2] = NetLine("horizontal", cv[2], 0, 0, H[2].w, H[2].points, H[2].starts, H[2].ends,
+                    [NurbsCurve(c.degree, c.knots, c.control_points + [0.0, 0.0, 0.2])])
+    assert not complete_cells(V, H3, one_side_missing=True)[0][3, 2]
+
+
+def test_side_short_of_its_crossing_is_closed_through_the_crossings():
+    """A line whose data stop short of a crossing by less than the reach but more than the
+    margin allows (a side missing, as the cell test judges it): the patch closes that side
+    through the crossings instead of running the line's biased last pixels on along its
+    tangent (0.11 mm off at the corner)."""
+    cu = np.arange(100.0, 260, 16)
+    cv = np.arange(80.0, 240, 16)
+    w = np.linspace(70, 250, 600)
+    H = [_netline("horizontal", c, np.linspace(90, 270, 300)) for c in cv]
+    V = [_netline("vertical", c, np.linspace(70, 250, 300)) for c in cu]
+    # V[4]: data stop at 220.5, 3.5 px short of the last crossing (at 224: within reach 4,
+    # not with margin 1 beyond), its last 6 px biased by 0.1 mm
+    a = w[w <= 220.5]
+    pa = _surface(np.full_like(a, cu[4]), a) + np.where((a > 214.5)[:, None], [0, 0, 0.1], 0.0)
+    ka = a[0] + (a[-1] - a[0]) * uniform_knots01(int(np.ceil((a[-1] - a[0]) / 16)))
+    V[4] = NetLine("vertical", float(cu[4]), 0, 0, a, pa, np.array([a[0]]), np.array([a[-1]]),
+                   [lstsq_spline(a, pa, ka)])
+    assert cv[-1] == 224.0
+    mask, _ = complete_cells(V, H, reach=4.0)
+    assert not mask[3:5, -1].any() and mask.sum() == mask.size - 2
+    mask, _ = complete_cells(V, H, reach=4.0, one_side_missing=True)
+    assert mask.all()
+    p = gordon_patch(V, H, rectangles(mask, 2)[0], reach=4.0)
+    corner = p.gordon.evaluate(np.array([cu[4]]), np.array([224.0]))[0]
+    assert np.linalg.norm(corner - _surface(cu[4], 224.0)) < 0.01
 
 
 def test_patch_corner_of_two_extended_sides():

@@ -504,16 +504,9 @@ def _interval(ln: NetLine, a: float, b: float, reach: float) -> int:
 def _sample(ln: NetLine, a: float, b: float, reach: float = 0.0):
     """The line's 3-D curve covering [a, b] as a function of ``w`` (array -> (n, 3))."""
     k = _interval(ln, a, b, reach)
-    if k < 0:  # the cell test guarantees coverage up to its margin: take the nearest interval
+    if k < 0:  # (gordon_patch fills such lines span by span, _fill_gaps): the nearest interval
         k = int(np.argmin(np.abs(0.5 * (ln.starts + ln.ends) - 0.5 * (a + b))))
     return lambda w: _evaluate(ln.curves[k], np.atleast_1d(np.asarray(w, float)))
-
-
-def _line_fun(ln: NetLine, a: float, b: float, reach: float):
-    """The line's curve on [a, b] (:func:`_sample`), or None when no one interval covers it."""
-    if int(_covers(ln, np.array([a]), np.array([b]), 0.0, reach)[0]) < 0:
-        return None
-    return _sample(ln, a, b, reach)
 
 
 def _span_values(ln: NetLine, w: np.ndarray, nodes: np.ndarray, reach: float,
@@ -530,7 +523,7 @@ def _span_values(ln: NetLine, w: np.ndarray, nodes: np.ndarray, reach: float,
     return out
 
 
-def _fill_gaps(V, H, cu, cv, reach: float):
+def _fill_gaps(V, H, cu, cv, reach: float, margin: float = 1.0):
     """Line functions for a rectangle some of whose lines miss a side (:func:`complete_cells`
     with ``one_side_missing``): each line's curve on the spans between crossings that it
     covers, elsewhere the cubic interpolant (not-a-knot) of the rectangle's crossings along
@@ -543,6 +536,9 @@ def _fill_gaps(V, H, cu, cv, reach: float):
         The rectangle's vertical and horizontal lines.
     cu, cv : (I,), (J,) float
         Their coordinates (projector px), where they cross the other family.
+    reach, margin : float
+        As in :func:`complete_cells`: a line covers a span or a crossing when one of its
+        intervals, reaching ``reach`` px beyond its data, covers it and ``margin`` px more.
 
     Returns
     -------
@@ -552,7 +548,7 @@ def _fill_gaps(V, H, cu, cv, reach: float):
     cu, cv = np.asarray(cu, float), np.asarray(cv, float)
 
     def nodes_values(ln, nodes):  # the line's points at the crossings it covers (as in
-        k = _covers(ln, nodes, nodes, 1.0, reach)  # complete_cells), NaN elsewhere
+        k = _covers(ln, nodes, nodes, margin, reach)  # complete_cells), NaN elsewhere
         out = np.full((len(nodes), 3), np.nan)
         for s in np.unique(k[k >= 0]):
             out[k == s] = _evaluate(ln.curves[s], nodes[k == s])
@@ -569,7 +565,7 @@ def _fill_gaps(V, H, cu, cv, reach: float):
 
         def f(w):
             w = np.atleast_1d(np.asarray(w, float))
-            P = _span_values(ln, w, across, reach)
+            P = _span_values(ln, w, across, reach, margin)
             bad = np.isnan(P[:, 0])
             P[bad] = fill(w[bad])
             return P
@@ -659,7 +655,8 @@ def _side_extents(sides, coords, a0: int, a1: int, next_cells, reach, margin, ma
 
 
 def gordon_patch(vlines, hlines, rect, per_span: int = 6, reach: float = 0.0,
-                 extend: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)) -> Patch:
+                 extend: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0),
+                 margin: float = 1.0) -> Patch:
     """Skins and Gordon surface of one rectangle ``(i0, i1, j0, j1)`` of cells.
 
     Each curve segment is re-approximated on the patch's knots from ``per_span`` samples per
@@ -675,6 +672,10 @@ def gordon_patch(vlines, hlines, rect, per_span: int = 6, reach: float = 0.0,
     curve is extrapolated). In the added strip the Gordon surface thus interpolates the
     vertical curves' data, and the horizontal skin's correction ``L1 - T`` is carried on from
     the last real horizontal curve.
+
+    A line that misses a span between the rectangle's crossings (as :func:`complete_cells`
+    judges it, with the same ``reach`` and ``margin``: a cell with one side missing) is
+    closed there through the crossings (:func:`_fill_gaps`).
     """
     i0, i1, j0, j1 = rect
     V = vlines[i0:i1 + 1]
@@ -685,10 +686,15 @@ def gordon_patch(vlines, hlines, rect, per_span: int = 6, reach: float = 0.0,
     cu = np.r_[[cu_r[0] - du0] if du0 > 0 else [], cu_r, [cu_r[-1] + du1] if du1 > 0 else []]
     cv = np.r_[[cv_r[0] - dv0] if dv0 > 0 else [], cv_r, [cv_r[-1] + dv1] if dv1 > 0 else []]
     ou, ov = int(du0 > 0), int(dv0 > 0)  # offset of the real curves
-    vfun = [_line_fun(ln, cv[0], cv[-1], reach) for ln in V]
-    hfun = [_line_fun(ln, cu[0], cu[-1], reach) for ln in H]
-    if any(f is None for f in vfun + hfun):
-        vfun, hfun = _fill_gaps(V, H, cu_r, cv_r, reach)
+    # each line's own curve where one interval covers its whole range; otherwise (a line
+    # split into intervals, or missing a span as complete_cells judges it) span by span
+    if any(_interval(ln, c[0], c[-1], reach) < 0
+           or np.any(_covers(ln, c_r[:-1], c_r[1:], margin, reach) < 0)
+           for lines_, c, c_r in ((V, cv, cv_r), (H, cu, cu_r)) for ln in lines_):
+        vfun, hfun = _fill_gaps(V, H, cu_r, cv_r, reach, margin)
+    else:
+        vfun = [_sample(ln, cv[0], cv[-1], reach) for ln in V]
+        hfun = [_sample(ln, cu[0], cu[-1], reach) for ln in H]
     # virtual curves: interpolate the other family's points across the patch (cubic,
     # not-a-knot); a corner of two extended sides: see point()
     iu = [i for i in range(len(cu)) if not ou <= i < ou + len(cu_r)]
