@@ -88,38 +88,49 @@ def test_accuracy_labels_coverage_on_warped_view(pattern, view, result):
 
 
 def test_coverage_apart_near_the_crossing_bands(pattern):
-    """A plane seen square on at 2 camera px per projector px, and a 'detection' of every
-    true edge sample except those within 1 projector px (2 camera px) of a crossing band:
-    the open coverage is 1, the corner coverage 0, and the corner zone is 2 of the gap's 10
-    projector px (an independent, analytic count)."""
+    """A sheared plane (proj_x = x / 2 + y / 2, proj_y = y / 2 + const) and a 'detection' of
+    every true edge sample except those within 2 camera px, along the edge, of a crossing
+    band: the open coverage is 1, the corner coverage 0. Along a vertical-band edge the
+    other coordinate changes by 0.5 / sqrt(2) projector px per camera px, along a horizontal
+    one by 0.5, so the corner zones are 1.41 and 2 of the gap's 10 projector px, and both
+    families have as many samples: share 0.171 (the gradient's length instead of its
+    component along the edge would give 0.241)."""
     h, w = 240, 320
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     ox, oy = 300.3, 200.7
-    truth = {"proj_x": ox + xx / 2, "proj_y": oy + yy / 2, "lit": np.ones((h, w), bool),
-             "surface_id": np.zeros((h, w), np.int32)}
+    truth = {"proj_x": ox + xx / 2 + yy / 2, "proj_y": oy + yy / 2,
+             "lit": np.ones((h, w), bool), "surface_id": np.zeros((h, w), np.int32)}
     gap = pattern.pitch - pattern.band
 
-    def open_rows(o, n, axis):  # pixel rows (columns) in a gap, 1 projector px from its ends
-        t = np.arange(n, dtype=np.float64)
-        q = np.mod(o + t / 2 - (pattern.offsets[axis] - 0.5), pattern.pitch) - pattern.band
-        return t[(q >= 1.0) & (q <= gap - 1.0)]
+    def open_at(other, axis, dmin):  # samples in a gap, dmin projector px from its ends
+        q = np.mod(other - (pattern.offsets[axis] - 0.5), pattern.pitch) - pattern.band
+        return (q >= dmin) & (q <= gap - dmin)
 
     xs, ys, line, direction, band, edge, coord = [], [], [], [], [], [], []
-    for d, edges, o0, o1, n_along, n_across in ((0, pattern.vertical_edges, ox, oy, h, w),
-                                                (1, pattern.horizontal_edges, oy, ox, w, h)):
-        along = open_rows(o1, n_along, 1 - d)
+    rows, cols = np.arange(h, dtype=np.float64), np.arange(w, dtype=np.float64)
+    for d, edges in ((0, pattern.vertical_edges), (1, pattern.horizontal_edges)):
         for b in range(len(edges)):
             for e in (0, 1):
-                a = (edges[b, e] - o0) * 2  # camera px across
-                if not 0 <= a <= n_across - 1:
+                c = edges[b, e]
+                if d == 0:  # x = 2 (c - ox) - y on each row; the other coordinate oy + y / 2
+                    x = 2 * (c - ox) - rows
+                    k = (x >= 0) & (x <= w - 1) & open_at(oy + rows / 2, 1, 0.75)
+                    px_, py_ = x[k], rows[k]
+                else:  # the row y = 2 (c - oy); the other coordinate ox + x / 2 + y / 2
+                    y = 2 * (c - oy)
+                    if not 0 <= y <= h - 1:
+                        continue
+                    k = open_at(ox + cols / 2 + y / 2, 0, 1.05)
+                    px_, py_ = cols[k], np.full(int(k.sum()), y)
+                if not len(px_):
                     continue
-                xs.append(np.full(len(along), a) if d == 0 else along)
-                ys.append(along if d == 0 else np.full(len(along), a))
-                line.append(np.full(len(along), len(direction)))
+                xs.append(px_)
+                ys.append(py_)
+                line.append(np.full(len(px_), len(direction)))
                 direction.append(d)
                 band.append(b)
                 edge.append(e)
-                coord.append(edges[b, e])
+                coord.append(c)
     counts = np.array([len(v) for v in xs])
     z2 = np.zeros((0, 2))
     r = DetectionResult(
@@ -131,10 +142,10 @@ def test_coverage_apart_near_the_crossing_bands(pattern):
         cross_band=z2.astype(np.int64), cross_edge=z2.astype(np.int64),
         cross_line=z2.astype(np.int64))
     ev = evaluate_detection(r, truth, pattern, match_radius=0.4)
-    assert ev["corner_share"] == pytest.approx(2.0 / gap, abs=0.02), ev
-    assert ev["coverage_open"] > 0.99, ev
-    assert ev["coverage_corner"] < 0.01, ev
-    assert ev["coverage"] == pytest.approx(1.0 - ev["corner_share"], abs=0.01), ev
+    expected = 0.5 * (2 * 0.5 ** 0.5 / gap + 2.0 / gap)
+    assert ev["corner_share"] == pytest.approx(expected, abs=0.012), ev
+    assert ev["coverage_open"] > 0.97, ev
+    assert ev["coverage_corner"] < 0.02, ev
 
 
 def test_result_structure(pattern, result):

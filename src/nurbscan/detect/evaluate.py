@@ -59,24 +59,26 @@ def _nearest_edge(edges: np.ndarray, f: np.ndarray) -> np.ndarray:
     return o[pick]
 
 
-def _corner_distance(ff, oo, r, c, sub, ov, pattern, other: str) -> np.ndarray:
+def _corner_distance(ff, oo, cc, r, c, ov, pattern, other: str) -> np.ndarray:
     """Camera px along the edge from each true crossing to the nearest band of the other
     direction (where the edge meets a crossing band's corner).
 
     ``ff`` / ``oo``: the edge's and the other direction's projector coordinate fields in the
-    frame where the crossings were searched along axis 1; the crossing of row ``r`` lies at
-    column ``sub`` (between ``c`` and ``c + 1``) with the other coordinate ``ov``. The distance
-    in projector px to the nearest boundary of the other direction's bands, over the rate of
-    the other coordinate along the edge: ``|grad G . t|``, ``t`` the unit tangent of the edge
-    (perpendicular to ``grad F``), by differences of the fields.
+    frame where the crossings were searched along axis 1, ``cc`` its good cells; the crossing
+    of row ``r`` lies between columns ``c`` and ``c + 1``, with the other coordinate ``ov``.
+    The distance in projector px to the nearest boundary of the other direction's bands, over
+    the rate of the other coordinate along the edge: ``|grad G . t|``, ``t`` the unit tangent
+    of the edge (perpendicular to ``grad F``), by differences of the fields (one-sided where
+    the row above lies off the surface).
     """
     a = 0 if other == "vertical" else 1
     u = np.mod(ov - (pattern.offsets[a] - 0.5), pattern.pitch) - pattern.band
     gap = pattern.pitch - pattern.band
     dc = np.minimum(u, gap - u)  # projector px, inside the gap
-    n = ff.shape[0]
-    r0, r1 = np.clip(r - 1, 0, n - 1), np.clip(r + 1, 0, n - 1)
-    span = np.maximum(r1 - r0, 1)
+    # the crossing's cell holds rows r and r + 1; row r - 1 only where its cell is good too
+    r0 = np.where((r > 0) & cc[np.maximum(r - 1, 0), c], r - 1, r)
+    r1 = r + 1
+    span = r1 - r0
     fr = (ff[r1, c] - ff[r0, c]) / span
     fc = ff[r, c + 1] - ff[r, c]
     gr = (oo[r1, c] - oo[r0, c]) / span
@@ -190,7 +192,7 @@ def evaluate_detection(result: DetectionResult, truth, pattern, match_radius: fl
         ov = oo[r, c] + (oo[r, c + 1] - oo[r, c]) * (sub - c)
         vis = pattern.stripe_field(ov, oname) < 0
         r, c, sub, ce, ov = r[vis], c[vis], sub[vis], ce[vis], ov[vis]
-        near = _corner_distance(ff, oo, r, c, sub, ov, pattern, oname) < corner_px
+        near = _corner_distance(ff, oo, cc, r, c, ov, pattern, oname) < corner_px
         # which (band, edge) is ce
         bi = _nearest_edge(edges, ce)
         fam = dd * 100000 + (bi // 2) * 2 + bi % 2
