@@ -237,18 +237,27 @@ def _evaluate(curve: NurbsCurve, w: np.ndarray, tangent: bool = False):
     return (P, D) if tangent else P
 
 
+def _by_interval(ln: NetLine, w: np.ndarray, k: np.ndarray, tangent: bool = False):
+    """Points (n, 3) of the line at ``w`` (n,) on the curves of the intervals ``k`` (n,),
+    NaN where ``k`` is -1 (:func:`_evaluate`, one call per interval); with ``tangent`` also
+    the derivatives."""
+    out = np.full((len(w), 3), np.nan)
+    der = np.full((len(w), 3), np.nan)
+    for s in np.unique(k[k >= 0]):
+        sel = k == s
+        out[sel], der[sel] = _evaluate(ln.curves[s], w[sel], tangent=True)
+    return (out, der) if tangent else out
+
+
 def _crossings(lines: list[NetLine], params: np.ndarray, margin: float, reach: float = 0.0):
     """Points and tangents ``dP/dw`` (n_lines, n_params, 3) of each line's curves at the
     other family's params, and the covering interval (n_lines, n_params) or -1."""
-    out = np.full((len(lines), len(params), 3), np.nan)
-    der = np.full((len(lines), len(params), 3), np.nan)
-    seg = np.full((len(lines), len(params)), -1)
-    for i, ln in enumerate(lines):
-        k = _covers(ln, params, params, margin, reach)
-        seg[i] = k
-        for s in np.unique(k[k >= 0]):
-            sel = k == s
-            out[i, sel], der[i, sel] = _evaluate(ln.curves[s], params[sel], tangent=True)
+    seg = np.array([_covers(ln, params, params, margin, reach) for ln in lines]).reshape(
+        len(lines), len(params))
+    pd = [_by_interval(ln, params, k, tangent=True) for ln, k in zip(lines, seg, strict=True)]
+    shape = (len(lines), len(params), 3)
+    out = np.array([p for p, _ in pd]).reshape(shape)
+    der = np.array([d for _, d in pd]).reshape(shape)
     return out, der, seg
 
 
@@ -514,13 +523,9 @@ def _span_values(ln: NetLine, w: np.ndarray, nodes: np.ndarray, reach: float,
     """Points (n, 3) of the line at ``w`` on the spans between consecutive ``nodes`` (the
     other family's crossings) that one of its intervals covers whole (a side present, as in
     :func:`complete_cells`); NaN on the other spans."""
-    out = np.full((len(w), 3), np.nan)
     k = _covers(ln, nodes[:-1], nodes[1:], margin, reach)  # interval of each span, or -1
     span = np.clip(np.searchsorted(nodes, w, side="right") - 1, 0, len(nodes) - 2)
-    for s in np.unique(k[k >= 0]):
-        sel = k[span] == s
-        out[sel] = _evaluate(ln.curves[s], w[sel])
-    return out
+    return _by_interval(ln, w, k[span])
 
 
 def _fill_gaps(V, H, cu, cv, reach: float, margin: float = 1.0):
@@ -545,14 +550,8 @@ def _fill_gaps(V, H, cu, cv, reach: float, margin: float = 1.0):
     vfun, hfun : list of callable
         Line functions ``w (n,) -> points (n, 3)`` mm, of the vertical and horizontal lines.
     """
-    cu, cv = np.asarray(cu, float), np.asarray(cv, float)
-
     def nodes_values(ln, nodes):  # the line's points at the crossings it covers (as in
-        k = _covers(ln, nodes, nodes, margin, reach)  # complete_cells), NaN elsewhere
-        out = np.full((len(nodes), 3), np.nan)
-        for s in np.unique(k[k >= 0]):
-            out[k == s] = _evaluate(ln.curves[s], nodes[k == s])
-        return out
+        return _by_interval(ln, nodes, _covers(ln, nodes, nodes, margin, reach))  # cells)
 
     Xv = np.stack([nodes_values(ln, cv) for ln in V])  # (I, J, 3)
     Xh = np.stack([nodes_values(ln, cu) for ln in H])  # (J, I, 3)
@@ -699,33 +698,38 @@ def gordon_patch(vlines, hlines, rect, per_span: int = 6, reach: float = 0.0,
     # not-a-knot); a corner of two extended sides: see point()
     iu = [i for i in range(len(cu)) if not ou <= i < ou + len(cu_r)]
     jv = [j for j in range(len(cv)) if not ov <= j < ov + len(cv_r)]
+    if iu or jv:
+        # the real curves on the whole (extended) grid, once: VG[i, j] = V_i(cv[j]) at the real
+        # vertical curve i (index into cu_r), HG[j, i] = H_j(cu[i]) likewise
+        VG = np.stack([f(cv) for f in vfun])
+        HG = np.stack([f(cu) for f in hfun])
 
-    def near(k, n, off):  # index of the real curve next to virtual index k
-        return off if k == 0 else off + n - 1
+        def near(k, n, off):  # index of the real curve next to virtual index k
+            return off if k == 0 else off + n - 1
 
-    def cross(i, j):  # crossing of the real curves i, j (indices into cu, cv)
-        return 0.5 * (hfun[j - ov](cu[i])[0] + vfun[i - ou](cv[j])[0])
+        def cross(i, j):  # crossing of the real curves i, j (indices into cu, cv)
+            return 0.5 * (HG[j - ov, i] + VG[i - ou, j])
 
-    def point(i, j):
-        if i not in iu:
-            return vfun[i - ou](cv[j])[0]
-        if j not in jv:
-            return hfun[j - ov](cu[i])[0]
-        # Boolean sum plus the twist of the last real cell (exact for a bilinear twist)
-        i_n, j_n = near(i, len(cu_r), ou), near(j, len(cv_r), ov)
-        i_b, j_b = i_n + (1 if i == 0 else -1), j_n + (1 if j == 0 else -1)
-        twist = (cross(i_n, j_n) - cross(i_b, j_n) - cross(i_n, j_b) + cross(i_b, j_b)) * (
-            (cu[i] - cu[i_n]) * (cv[j] - cv[j_n]) / ((cu[i_n] - cu[i_b]) * (cv[j_n] - cv[j_b])))
-        return (hfun[j_n - ov](cu[i])[0] + vfun[i_n - ou](cv[j])[0] - cross(i_n, j_n)
-                + twist)
+        def point(i, j):
+            if i not in iu:
+                return VG[i - ou, j]
+            if j not in jv:
+                return HG[j - ov, i]
+            # Boolean sum plus the twist of the last real cell (exact for a bilinear twist)
+            i_n, j_n = near(i, len(cu_r), ou), near(j, len(cv_r), ov)
+            i_b, j_b = i_n + (1 if i == 0 else -1), j_n + (1 if j == 0 else -1)
+            twist = (cross(i_n, j_n) - cross(i_b, j_n) - cross(i_n, j_b) + cross(i_b, j_b)) * (
+                (cu[i] - cu[i_n]) * (cv[j] - cv[j_n])
+                / ((cu[i_n] - cu[i_b]) * (cv[j_n] - cv[j_b])))
+            return HG[j_n - ov, i] + VG[i_n - ou, j] - cross(i_n, j_n) + twist
 
-    def spline(x, pts):
-        return make_interp_spline(x, np.array(pts), k=min(3, len(x) - 1))
+        def spline(x, pts):
+            return make_interp_spline(x, np.array(pts), k=min(3, len(x) - 1))
 
-    hv = {j: spline(cu, [point(i, j) for i in range(len(cu))]) for j in jv}
-    vv = {i: spline(cv, [point(i, j) for j in range(len(cv))]) for i in iu}
-    hfun = [hv[j] if j in hv else hfun[j - ov] for j in range(len(cv))]
-    vfun = [vv[i] if i in vv else vfun[i - ou] for i in range(len(cu))]
+        hv = {j: spline(cu, [point(i, j) for i in range(len(cu))]) for j in jv}
+        vv = {i: spline(cv, [point(i, j) for j in range(len(cv))]) for i in iu}
+        hfun = [hv[j] if j in hv else hfun[j - ov] for j in range(len(cv))]
+        vfun = [vv[i] if i in vv else vfun[i - ou] for i in range(len(cu))]
     nI, nJ = len(cu), len(cv)
     p, q = min(3, nI - 1), min(3, nJ - 1)
     Ku, Kv = averaging_knots(cu, p), averaging_knots(cv, q)
