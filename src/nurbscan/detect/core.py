@@ -280,7 +280,7 @@ def _assign_votes(label, vote_line, vote_band, lcode, seq, min_votes: int,
     """
     new, _, _ = line_labels(vote_line, None, vote_band, len(label), min_votes=min_votes,
                             min_agreement=min_agreement, direct=True)
-    cand = np.nonzero((new >= 0) & (label < 0))[0]
+    cand = np.nonzero((new >= 0) & (new < len(seq)) & (label < 0))[0]
     col = lcode[cand]
     ok = (col == seq[new[cand]]) | (accept_unknown & (col < 0))
     out = label.copy()
@@ -532,6 +532,35 @@ def point_coordinates(lab: np.ndarray, cls: np.ndarray, pattern) -> np.ndarray:
                     pattern.edge_coordinate("horizontal", np.where(vert, -1, lab), cls % 2))
 
 
+def local_plane(xs, ys, v, qx, qy, min_spread: float = 1.0) -> tuple:
+    """Least-squares plane through scattered values, evaluated at query points.
+
+    For each query point ``n`` the plane ``v = v0 + g . (p - mean p)`` through its K
+    neighbours (``xs``, ``ys``, ``v`` (N, K); camera px and any value) is fitted by least
+    squares. The gradient ``g`` is only fitted along the directions in which the neighbours
+    spread by at least ``min_spread`` px RMS (neighbours on one line do not tell how ``v``
+    changes across it: taken as 0 there).
+
+    Returns
+    -------
+    pred, rms, lo, hi : (N,) float
+        The plane's value at (``qx``, ``qy``) (N,), the RMS residual of the neighbours, and
+        the least and largest neighbour value.
+    """
+    k = xs.shape[1]
+    P = np.stack([xs - xs.mean(1, keepdims=True), ys - ys.mean(1, keepdims=True)], -1)
+    vm = v.mean(1)
+    C = np.einsum("nki,nkj->nij", P, P)
+    bvec = np.einsum("nki,nk->ni", P, v - vm[:, None])
+    val, vec = np.linalg.eigh(C)
+    coef = np.einsum("nji,nj->ni", vec, bvec) / np.maximum(val, 1e-12)
+    coef = np.where(val > k * min_spread**2, coef, 0.0)
+    g = np.einsum("nji,ni->nj", vec, coef)
+    rms = np.sqrt(np.mean((vm[:, None] + np.einsum("nki,ni->nk", P, g) - v) ** 2, axis=1))
+    q = np.c_[qx - xs.mean(1), qy - ys.mean(1)]
+    return vm + np.einsum("ni,ni->n", q, g), rms, v.min(1), v.max(1)
+
+
 def epipolar_coordinates(label, x, y, cls, line, pattern, other_coordinate, radius: float,
                          k: int = 32, max_rms: float = 1.0, stride: int = 1) -> np.ndarray:
     """Each edge point's own projector coordinate, predicted from the other family's labelled
@@ -571,28 +600,99 @@ def epipolar_coordinates(label, x, y, cls, line, pattern, other_coordinate, radi
         dst, j = dst[full], j[full]
         if not len(dst):
             continue
-        # plane v = v0 + g . (p - mean p) through the k neighbours (least squares); the
-        # gradient g only along the directions in which the neighbours spread by at least
-        # 1 px RMS (neighbours on one line do not tell how v changes across it: taken as 0)
-        xs, ys, V = x[src][j], y[src][j], other[src][j]
-        P = np.stack([xs - xs.mean(1, keepdims=True), ys - ys.mean(1, keepdims=True)], -1)
-        vm = V.mean(1)
-        C = np.einsum("nki,nkj->nij", P, P)
-        bvec = np.einsum("nki,nk->ni", P, V - vm[:, None])
-        val, vec = np.linalg.eigh(C)
-        coef = np.einsum("nji,nj->ni", vec, bvec) / np.maximum(val, 1e-12)
-        coef = np.where(val > k * 1.0, coef, 0.0)
-        g = np.einsum("nji,ni->nj", vec, coef)
-        rms = np.sqrt(np.mean((vm[:, None] + np.einsum("nki,ni->nk", P, g) - V) ** 2, axis=1))
-        q = np.c_[x[dst] - xs.mean(1), y[dst] - ys.mean(1)]
-        p = vm + np.einsum("ni,ni->n", q, g)
+        p, rms, _, _ = local_plane(x[src][j], y[src][j], other[src][j], x[dst], y[dst])
         pred[dst] = np.where(rms <= max_rms, p, np.nan)
     return pred
 
 
+def family_coordinates(label, x, y, cls, line, pattern, radius: float, k: int = 40,
+                       max_rms: float = 1.0, margin: float = 2.0, stride: int = 3) -> np.ndarray:
+    """The projector coordinate of the unlabelled lines' points, interpolated from the
+    labelled points of their own family around them.
+
+    A vertical-band edge point's projector ``x`` is a smooth function of its camera pixel on
+    one surface. Every point of an unlabelled line gets it from the ``k`` nearest labelled
+    points of its own family (every ``stride``-th point of their lines) within ``radius``
+    camera px, by a least-squares plane in camera (x, y) (:func:`local_plane`); likewise the
+    projector ``y`` of horizontal-band edge points. NaN where there are fewer neighbours,
+    where their RMS residual exceeds ``max_rms`` projector px (a depth step or a misread
+    neighbour among them), or where the prediction is not at least ``margin`` projector px
+    inside the neighbours' coordinates (an extrapolation: beyond an occluding contour the
+    plane of the near surface says nothing). :func:`interpolate_labels` does the same along
+    rows and columns, from the two labelled edges beside a point; the plane also reaches
+    the pieces whose rows cross no labelled edge near them (the teapot's lid, where the
+    vertical bands are tilted and cut the horizontal edges into cell-long pieces). The
+    local camera-to-projector map is what phase-unwrapping decoders unwrap with.
+
+    Arrays (N,) as in :func:`detect_grid`'s lines, ``label`` (L,); returns (N,) projector px
+    (NaN for the points of labelled lines).
+    """
+    lab = label[line]
+    d = cls // 2
+    known = lab >= 0
+    coord = point_coordinates(lab, cls, pattern)
+    pred = np.full(len(x), np.nan)
+    for dd in (0, 1):
+        src = np.nonzero(known & (d == dd))[0]
+        src = src[src % stride == 0]
+        dst = np.nonzero(~known & (d == dd))[0]
+        if len(src) < k or not len(dst):
+            continue
+        dist, j = cKDTree(np.c_[x[src], y[src]]).query(np.c_[x[dst], y[dst]], k=k,
+                                                       distance_upper_bound=radius)
+        full = np.isfinite(dist).all(1)
+        dst, j = dst[full], j[full]
+        if not len(dst):
+            continue
+        p, rms, lo, hi = local_plane(x[src][j], y[src][j], coord[src][j], x[dst], y[dst])
+        ok = (rms <= max_rms) & (p >= lo + margin) & (p <= hi - margin)
+        pred[dst] = np.where(ok, p, np.nan)
+    return pred
+
+
+def row_consistent(label, line, cls, pred, pattern, rows: list) -> np.ndarray:
+    """Whether each point's predicted edge agrees with the edge count of its row.
+
+    ``pred`` (N,) is a predicted projector coordinate for points of unlabelled lines (NaN
+    elsewhere); its candidate is the nearest pattern edge of the point's kind (rising /
+    falling). Along the point's pixel row (column for horizontal-band edges; ``rows`` is
+    :func:`row_order`), between it and the nearest labelled point on each side, there must
+    lie as many edge points as there are pattern edges between their coordinates and the
+    candidate (no edge missed or spurious between them, as in :func:`interpolate_labels`).
+    A point passes when it has a labelled neighbour in its row on at least one side and
+    every such side agrees: a surface squeezed between two others (a handle's side) holds
+    more edges than a plane through its neighbours allows. Returns bool (N,).
+    """
+    out = np.zeros(len(line), bool)
+    for d, idx, run, _ in rows:
+        name = ("vertical", "horizontal")[d]
+        lab = label[line[idx]]
+        known = lab >= 0
+        c = np.full(len(idx), np.nan)
+        c[known] = pattern.edge_coordinate(name, lab[known], cls[idx][known] % 2)
+        m = len(idx)
+        p = np.arange(m)
+        prv = np.maximum.accumulate(np.where(known, p, -1))
+        nxt = np.minimum.accumulate(np.where(known, p, m)[::-1])[::-1]
+        k = np.nonzero(~known & np.isfinite(pred[idx]))[0]
+        edges = pattern.vertical_edges if d == 0 else pattern.horizontal_edges
+        flat = np.sort(edges.reshape(-1))
+        e = cls[idx[k]] % 2
+        cand = edges[nearest_band(edges, pred[idx[k]], e, pattern.pitch), e]
+        eidx = np.searchsorted(flat, cand - 1e-6)
+        j1, j2 = prv[k], nxt[k]
+        has1 = (j1 >= 0) & (run[np.maximum(j1, 0)] == run[k])
+        has2 = (j2 < m) & (run[np.minimum(j2, m - 1)] == run[k])
+        c1, c2 = c[np.maximum(j1, 0)], c[np.minimum(j2, m - 1)]
+        ok1 = (eidx - np.searchsorted(flat, c1 - 1e-6)) == (k - j1)
+        ok2 = (np.searchsorted(flat, c2 - 1e-6) - eidx) == (j2 - k)
+        out[idx[k]] = (has1 | has2) & (~has1 | ok1) & (~has2 | ok2)
+    return out
+
+
 def epipolar_labels(label, pred, cls, line, lcode, pattern, tol: float = 0.25,
                     min_points: int = 6, min_votes: int = 3,
-                    min_agreement: float = 0.9) -> np.ndarray:
+                    min_agreement: float = 0.9, dissent: bool = False) -> np.ndarray:
     """Label unlabelled lines by the projector coordinates the rig predicts for their points.
 
     ``pred`` (N,) is :func:`epipolar_coordinates`. Each point of an unlabelled line of at
@@ -601,8 +701,10 @@ def epipolar_labels(label, pred, cls, line, lcode, pattern, tol: float = 0.25,
     ``min_votes`` of its votes, a share ``min_agreement`` of them, agree on, unless its own
     colour code ``lcode`` (-1 unknown) contradicts the band's. Where the bands of the other
     direction cut the edges into pieces too short for the colour windows (the teapot's lid
-    and bottom), the other family is mostly decoded, so the pieces are labelled here.
-    Returns labels (L,).
+    and bottom), the other family is mostly decoded, so the pieces are labelled here. With
+    ``dissent``, a predicted point farther than ``tol`` from every pattern edge of its kind
+    votes against its line's labelling (a tracer chain that runs on past its edge along
+    another feature). Returns labels (L,).
     """
     seq = np.asarray(pattern.sequence)
     counts = np.bincount(line, minlength=len(label))
@@ -614,8 +716,8 @@ def epipolar_labels(label, pred, cls, line, lcode, pattern, tol: float = 0.25,
         e = cls[dst] % 2
         b = nearest_band(edges, pred[dst], e, pattern.pitch)
         good = np.abs(pred[dst] - edges[b, e]) <= tol * pattern.pitch
-        vl.append(line[dst[good]])
-        vv.append(b[good])
+        vl.append(line[dst] if dissent else line[dst[good]])
+        vv.append(np.where(good, b, len(seq)) if dissent else b[good])
     return _assign_votes(label, np.concatenate(vl), np.concatenate(vv), lcode, seq, min_votes,
                          min_agreement, accept_unknown=True)
 
@@ -872,7 +974,9 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                 interpolation_span: float = 2.2, interpolation_tol: float = 0.1,
                 require_colour: bool = True, collinear_rounds: int = 5,
                 collinear_unknown: bool = True, families: bool = True,
-                pool_gap: float = 2.0, pool_tol: float = 2.0, epipolar=None,
+                pool_gap: float = 2.0, pool_tol: float = 2.0, fit_rounds: int = 2,
+                fit_radius: float = 3.0, fit_rms: float = 1.0, fit_tol: float = 0.125,
+                epipolar=None,
                 epipolar_radius: float = 2.0, epipolar_rounds: int = 2,
                 tail_residual: float | None = None, min_paired: int = 2,
                 sigma_per_band: float = 8.0) -> DetectionResult:
@@ -1026,6 +1130,26 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         2.5 px off), labels 99.998 %, no wrong line; demo Gordon coverage 53.2 -> 54.8 %.
         Only where the bands are resolved (``FINE_BAND_PX``): on 3 px bands the loose joins
         link neighbouring edges and wrong labels reach the calibration.
+    fit_rounds : int
+        Rounds of labels from the family's own camera-to-projector map, after the colour
+        windows, their propagation and :func:`interpolate_labels`, where the bands are
+        resolved: every point of an unlabelled line gets its projector coordinate from a
+        local plane through the labelled points of its family within ``fit_radius`` camera
+        pitches (:func:`family_coordinates`; none where their RMS residual exceeds
+        ``fit_rms`` projector px or where it would extrapolate), the candidate edge must
+        agree with the edge count of the point's row (column) towards its labelled
+        neighbours (:func:`row_consistent`), and a line takes the band its points vote for
+        within ``fit_tol`` pitches, with the points that fit no edge voting against
+        (:func:`epipolar_labels` with ``dissent``) and its colour not contradicting it. 0
+        disables (``nurbscan reconstruct`` does: with the rig the epipolar prediction labels
+        these pieces, and the two together gave Gordon coverage 90.09 -> 90.01 %). 7.1 MP
+        teapot view 0 at 1x noise: coverage 0.6588 -> 0.6677, RMS 0.0453 -> 0.0466 px; demo
+        scan views 0-7: coverage 0.6848 -> 0.6917, RMS 0.0435 -> 0.0454 px, labels 99.998 %,
+        no wrong line (without the row check, three rounds: 0.6981, but a handle's side
+        squeezed between two surfaces took a band three pitches off: one wrong line over
+        20 px); about 0.1 s per round on a 7.1 MP view (a third round: +0.001).
+    fit_radius, fit_rms, fit_tol : float
+        See ``fit_rounds``.
     epipolar : callable, optional
         ``other_coordinate(pixels (N, 2), direction, coord (N,)) -> (N,)``: the other
         projector coordinate at camera pixels on projector edges, from a calibrated rig
@@ -1244,6 +1368,19 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                                            min_votes=min_votes,
                                            require_colour=require_colour, rows=rows),
             label, interpolation_rounds)
+        label = check_all_adjacency(label)
+    if fit_rounds and fine:
+        fit_r = fit_radius * band_px_est * pattern.pitch / pattern.band
+        rows = rows if interpolation_rounds else row_order(px, py, cls)
+
+        def fit_round(lab):
+            pred = family_coordinates(lab, px, py, cls, line, pattern, fit_r, max_rms=fit_rms)
+            pred = np.where(row_consistent(lab, line, cls, pred, pattern, rows), pred, np.nan)
+            return epipolar_labels(lab, pred, cls, line, lcode_all, pattern, tol=fit_tol,
+                                   min_votes=min_votes, min_agreement=min_agreement,
+                                   dissent=True)
+
+        label = _until_stable(fit_round, label, fit_rounds)
         label = check_all_adjacency(label)
     if epipolar is not None and fine and epipolar_rounds:
         radius = epipolar_radius * band_px_est * pattern.pitch / pattern.band
