@@ -87,6 +87,10 @@ class EdgePoints:
         Peak gradient magnitude (per px of the normalised signal) at the point.
     gx, gy : float32
         Gradient of the smoothed signal at the edge pixel.
+    dominance : float32, optional
+        The gradient's component along the point's family normal over the one along the
+        other family's (``|g_x| / |g_y|`` for vertical-band edges without families): the
+        largest ``dominance`` of :func:`detect_edge_points` that finds the point.
     """
 
     x: np.ndarray
@@ -97,6 +101,12 @@ class EdgePoints:
     strength: np.ndarray
     gx: np.ndarray
     gy: np.ndarray
+    dominance: np.ndarray | None = None
+
+    def take(self, index) -> EdgePoints:
+        """The points selected by ``index`` (bool mask or integer indices)."""
+        return EdgePoints(**{k: (None if v is None else v[index])
+                             for k, v in self.__dict__.items()})
 
 
 def family_normals(gx: np.ndarray, gy: np.ndarray, strong: np.ndarray, tile: int = 48,
@@ -235,10 +245,14 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         d2 = dominance * dominance
         vmask[sy, sx] = comp[0] >= d2 * comp[1]
         hmask[sy, sx] = comp[1] > d2 * comp[0]
+        # squared ratio of the vertical family's component to the horizontal one's
+        ratio2 = np.zeros((h, w), np.float32)
+        ratio2[sy, sx] = comp[0] / np.maximum(comp[1], 1e-20)
         del sy, sx, comp, mag2, diff2, prod2
     else:
         vmask = strong & (ax >= dominance * ay)
         hmask = strong & (ay > dominance * ax)
+        ratio2 = (ax / np.maximum(ay, 1e-10)) ** 2
     out = []
     # vertical class: maximum of m along the row
     c = np.zeros((h, w), bool)
@@ -246,18 +260,20 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     iy, ix = np.nonzero(c)
     d = _subpixel(lx[iy, ix - 1], lx[iy, ix], lx[iy, ix + 1])
     out.append((ix + d, iy.astype(np.float64), ix, iy, np.where(gx[iy, ix] > 0, 0, 1),
-                ax[iy, ix], gx[iy, ix], gy[iy, ix]))
+                ax[iy, ix], gx[iy, ix], gy[iy, ix], np.sqrt(ratio2[iy, ix])))
     c[:] = False
     c[1:-1, :] = (hmask[1:-1, :] & (ay[1:-1, :] > ay[:-2, :]) & (ay[1:-1, :] >= ay[2:, :]))
     iy, ix = np.nonzero(c)
     d = _subpixel(ly[iy - 1, ix], ly[iy, ix], ly[iy + 1, ix])
     out.append((ix.astype(np.float64), iy + d, ix, iy, np.where(gy[iy, ix] > 0, 2, 3),
-                ay[iy, ix], gx[iy, ix], gy[iy, ix]))
-    cat = [np.concatenate([o[k] for o in out]) for k in range(8)]
+                ay[iy, ix], gx[iy, ix], gy[iy, ix],
+                1.0 / np.sqrt(np.maximum(ratio2[iy, ix], 1e-20))))
+    cat = [np.concatenate([o[k] for o in out]) for k in range(9)]
     return EdgePoints(x=cat[0].astype(np.float64), y=cat[1].astype(np.float64),
                       ix=cat[2].astype(np.int32), iy=cat[3].astype(np.int32),
                       cls=cat[4].astype(np.int8), strength=cat[5].astype(np.float32),
-                      gx=cat[6].astype(np.float32), gy=cat[7].astype(np.float32))
+                      gx=cat[6].astype(np.float32), gy=cat[7].astype(np.float32),
+                      dominance=cat[8].astype(np.float32))
 
 
 def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray,
