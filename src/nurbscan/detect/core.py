@@ -561,6 +561,17 @@ def local_plane(xs, ys, v, qx, qy, min_spread: float = 1.0) -> tuple:
     return vm + np.einsum("ni,ni->n", q, g), rms, v.min(1), v.max(1)
 
 
+def _plane_at(x, y, v, src, dst, k: int, radius: float) -> tuple:
+    """:func:`local_plane` through the ``k`` nearest points ``src`` (indices into ``x``, ``y``,
+    ``v``) of each point ``dst``, for the ``dst`` that have all ``k`` within ``radius`` px.
+    Returns those ``dst`` and the plane's value, RMS residual, least and largest value."""
+    dist, j = cKDTree(np.c_[x[src], y[src]]).query(np.c_[x[dst], y[dst]], k=k,
+                                                   distance_upper_bound=radius)
+    full = np.isfinite(dist).all(1)
+    dst, j = dst[full], j[full]
+    return (dst,) + local_plane(x[src][j], y[src][j], v[src][j], x[dst], y[dst])
+
+
 def epipolar_coordinates(label, x, y, cls, line, pattern, other_coordinate, radius: float,
                          k: int = 32, max_rms: float = 1.0, stride: int = 1) -> np.ndarray:
     """Each edge point's own projector coordinate, predicted from the other family's labelled
@@ -594,13 +605,7 @@ def epipolar_coordinates(label, x, y, cls, line, pattern, other_coordinate, radi
         dst = dst[dst % stride == 0]
         if len(src) < k or not len(dst):
             continue
-        dist, j = cKDTree(np.c_[x[src], y[src]]).query(np.c_[x[dst], y[dst]], k=k,
-                                                       distance_upper_bound=radius)
-        full = np.isfinite(dist).all(1)
-        dst, j = dst[full], j[full]
-        if not len(dst):
-            continue
-        p, rms, _, _ = local_plane(x[src][j], y[src][j], other[src][j], x[dst], y[dst])
+        dst, p, rms, _, _ = _plane_at(x, y, other, src, dst, k, radius)
         pred[dst] = np.where(rms <= max_rms, p, np.nan)
     return pred
 
@@ -638,13 +643,7 @@ def family_coordinates(label, x, y, cls, line, pattern, radius: float, k: int = 
         dst = np.nonzero(~known & (d == dd))[0]
         if len(src) < k or not len(dst):
             continue
-        dist, j = cKDTree(np.c_[x[src], y[src]]).query(np.c_[x[dst], y[dst]], k=k,
-                                                       distance_upper_bound=radius)
-        full = np.isfinite(dist).all(1)
-        dst, j = dst[full], j[full]
-        if not len(dst):
-            continue
-        p, rms, lo, hi = local_plane(x[src][j], y[src][j], coord[src][j], x[dst], y[dst])
+        dst, p, rms, lo, hi = _plane_at(x, y, coord, src, dst, k, radius)
         ok = (rms <= max_rms) & (p >= lo + margin) & (p <= hi - margin)
         pred[dst] = np.where(ok, p, np.nan)
     return pred
