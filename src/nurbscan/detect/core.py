@@ -535,11 +535,12 @@ def point_coordinates(lab: np.ndarray, cls: np.ndarray, pattern) -> np.ndarray:
 def local_plane(xs, ys, v, qx, qy, min_spread: float = 1.0) -> tuple:
     """Least-squares plane through scattered values, evaluated at query points.
 
-    For each query point ``n`` the plane ``v = v0 + g . (p - mean p)`` through its K
-    neighbours (``xs``, ``ys``, ``v`` (N, K); camera px and any value) is fitted by least
-    squares. The gradient ``g`` is only fitted along the directions in which the neighbours
-    spread by at least ``min_spread`` px RMS (neighbours on one line do not tell how ``v``
-    changes across it: taken as 0 there).
+    For each query point ``n`` (``qx``, ``qy`` (N,), camera px) the plane
+    ``v = v0 + g . (p - mean p)`` through its K neighbours (``xs``, ``ys``, ``v`` (N, K);
+    camera px and any value, e.g. projector px) is fitted by least squares. The gradient
+    ``g`` is only fitted along the directions in which the neighbours spread by at least
+    ``min_spread`` px RMS (neighbours on one line do not tell how ``v`` changes across it:
+    taken as 0 there).
 
     Returns
     -------
@@ -694,16 +695,16 @@ def epipolar_labels(label, pred, cls, line, lcode, pattern, tol: float = 0.25,
                     min_agreement: float = 0.9, dissent: bool = False) -> np.ndarray:
     """Label unlabelled lines by the projector coordinates the rig predicts for their points.
 
-    ``pred`` (N,) is :func:`epipolar_coordinates`. Each point of an unlabelled line of at
-    least ``min_points`` points votes for the nearest pattern edge of its kind (rising /
-    falling) to its predicted coordinate, within ``tol`` pitches. A line takes the band that
-    ``min_votes`` of its votes, a share ``min_agreement`` of them, agree on, unless its own
-    colour code ``lcode`` (-1 unknown) contradicts the band's. Where the bands of the other
-    direction cut the edges into pieces too short for the colour windows (the teapot's lid
-    and bottom), the other family is mostly decoded, so the pieces are labelled here. With
+    ``pred`` (N,) is :func:`epipolar_coordinates` (or :func:`family_coordinates`). Each point of
+    an unlabelled line of at least ``min_points`` points votes for the nearest pattern edge of
+    its kind (rising / falling) to its predicted coordinate, within ``tol`` pitches. A line
+    takes the band that ``min_votes`` of its votes, a share ``min_agreement`` of them, agree on,
+    unless its own colour code ``lcode`` (-1 unknown) contradicts the band's. Where the bands of
+    the other direction cut the edges into pieces too short for the colour windows (the teapot's
+    lid and bottom), the other family is mostly decoded, so the pieces are labelled here. With
     ``dissent``, a predicted point farther than ``tol`` from every pattern edge of its kind
-    votes against its line's labelling (a tracer chain that runs on past its edge along
-    another feature). Returns labels (L,).
+    votes against its line's labelling (a tracer chain that runs on past its edge along another
+    feature). Returns labels (L,).
     """
     seq = np.asarray(pattern.sequence)
     counts = np.bincount(line, minlength=len(label))
@@ -860,6 +861,40 @@ def attach_points(line, cls, ix, iy, extra, shape, rounds: int = 3) -> np.ndarra
         okey = np.r_[okey, keys(ecls[free[new]], ey[free[new]], ex[free[new]])]
         oline = np.r_[oline, hi[new]]
     return att
+
+
+def extend_lines(x, y, strength, line, direction, edge, extra, shape, min_strength: float,
+                 tol: float, reach: int = 6) -> tuple:
+    """The lines (points grouped by line) extended by the extra points that continue them.
+
+    Each extra point (``extra``, :class:`~nurbscan.detect.edges.EdgePoints`) of at least
+    ``min_strength`` joins the line :func:`attach_points` finds for it (the lines' edge
+    pixels are taken as their points' rounded positions across the edge) and is kept when
+    it lies within ``tol`` camera px of the straight line through the line's own points
+    among the ``reach`` chain positions on either side of it (one side at a chain's end;
+    :func:`~nurbscan.detect.lines.neighbour_fit`). Points are re-ordered along each line
+    (y for vertical-band edges, ``direction`` 0). ``x``, ``y``, ``strength``, ``line`` (N,);
+    ``direction``, ``edge`` (L,) per line. Returns the four arrays extended.
+    """
+    vk = direction[line] == 0
+    cx = np.where(vk, np.round(x), x).astype(np.int64)
+    cy = np.where(vk, y, np.round(y)).astype(np.int64)
+    att = attach_points(line, 2 * direction[line] + edge[line], cx, cy, extra, shape)
+    a = np.nonzero((att >= 0) & (extra.strength >= min_strength))[0]
+    if not len(a):
+        return x, y, strength, line
+    line_all = np.r_[line, att[a]]
+    vk = direction[line_all] == 0
+    o = np.lexsort((np.where(vk, np.r_[y, extra.y[a]], np.r_[x, extra.x[a]]), line_all))
+    x, y = np.r_[x, extra.x[a]][o], np.r_[y, extra.y[a]][o]
+    strength = np.r_[strength, extra.strength[a]][o]
+    new = np.r_[np.zeros(len(line), bool), np.ones(len(a), bool)][o]
+    line = line_all[o]
+    vk = direction[line] == 0
+    c0, ok = neighbour_fit(np.where(vk, y, x), np.where(vk, x, y), line, ~new, reach=reach,
+                           both_sides=False)
+    keep = ~new | (ok & (np.abs(np.where(vk, x, y) - c0) <= tol))
+    return x[keep], y[keep], strength[keep], line[keep]
 
 
 def _until_stable(step, label: np.ndarray, rounds: int) -> np.ndarray:
@@ -1093,9 +1128,11 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         0.0454 px, 0.624).
     new_end_residual : float
         The row-support filters (``max_row_residual``, ``keep_unsupported``) drop points and
-        leave new chain ends beside them; those farther than this (camera px) from the
-        straight line through their chain's next points are dropped as well, up to three
-        times (:func:`chain_end_residual`); 0 keeps them. 7.1 MP teapot view 0: RMS 0.0466
+        can leave a point beside them as a chain's new first or last point; after them the
+        two ends of every chain are tested again, those farther than this (camera px) from
+        the straight line through their chain's next points dropped, up to three times
+        (:func:`chain_end_residual`; points beside a gap inside a chain are not tested); 0
+        keeps them. 7.1 MP teapot view 0: RMS 0.0466
         -> 0.0458 px, coverage 0.6677 -> 0.6666 (with ``dominance=0.5``: the points off by
         more than 1 px 16 -> 10, carrying 68 -> 55 % of the squared error); demo scan views
         0-7: RMS 0.0454 -> 0.0442 px, coverage 0.6917 -> 0.6910.
@@ -1124,20 +1161,22 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         coverage 53.3 -> 57.2 %, labels 99.88 %, RMS 0.054 -> 0.058 px; a few intersections
         of short lines go wrong). Default 1: one class per pixel, as before.
     corner_dominance : float
-        Edge points found only with a gradient dominance below ``dominance`` and at least
-        this (the corner pixels beside a crossing band, where the other family's gradient
-        dominates but the edge's row (column) profile still peaks) are not traced; after
-        the point filters they extend the decoded lines they continue
-        (:func:`attach_points`), each kept when it lies within ``corner_residual`` camera px
-        of the straight line through its chain's next 6 decoded points. They are left out
-        of the grid intersections. 1 disables (``nurbscan reconstruct`` does: with its
-        point filters off they reached the curve fits unchecked). 7.1 MP teapot view 0 at
-        1x noise: coverage 0.6666 -> 0.6898 (within 2 px of a crossing band 0.448 ->
-        0.538), RMS 0.0458 -> 0.0470 px; demo scan views 0-7: coverage 0.6910 -> 0.7156,
-        RMS 0.0442 -> 0.0456 px, labels unchanged; 1280 x 960 teapot: 0.542 -> 0.579
-        (``corner_residual`` 0.15: 0.6952, 0.7211, RMS 0.049 and 0.048 px). Tracing them
-        instead (``dominance=0.5``: 0.6918 on view 0) let a squeezed spout side take a body
-        edge's band across the depth step (two wrong lines over 20 px in demo view 5).
+        Edge points found only with a gradient dominance below ``dominance`` and at least this
+        (the corner pixels beside a crossing band, where the other family's gradient dominates
+        but the edge's row (column) profile still peaks) are not traced. Where the bands are
+        resolved (``FINE_BAND_PX``), after every filter and the grid intersections, those of at
+        least ``min_strength`` extend the final lines they continue (:func:`extend_lines`), each
+        kept when it lies within ``corner_residual`` camera px of the straight line through its
+        line's other points within 6 chain positions. The lines, their labels and the
+        intersections stay as they are. 1 disables (``nurbscan reconstruct`` does: with its
+        point filters off they reached the curve fits unchecked, Gordon coverage 90.09 -> 89.86
+        %; and the calibration, whose points are all fitted). 7.1 MP teapot view 0 at 1x noise:
+        coverage 0.6666 -> 0.6863 (within 2 px of a crossing band 0.448 -> 0.531), RMS 0.0458 ->
+        0.0468 px; demo scan views 0-7: coverage 0.6910 -> 0.7123, RMS 0.0442 -> 0.0453 px,
+        labels unchanged; 1280 x 960 teapot: 0.542 -> 0.571 (``corner_residual`` 0.15: view 0
+        0.6907, RMS 0.048 px). Tracing them instead (``dominance=0.5``: 0.6918 on view 0) let a
+        squeezed spout side take a body edge's band across the depth step (two wrong lines over
+        20 px in demo view 5).
     corner_residual : float
         See ``corner_dominance``.
     corner_keep : float
@@ -1268,9 +1307,10 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         raise NurbscanError(f"gamma={gamma!r}: must be positive")
     if tail_residual is None:
         tail_residual = 1.0 if epipolar is not None else 0.0
-    if not 0 < dominance <= 1 or not corner_keep >= 0:
-        raise NurbscanError(f"dominance={dominance!r}, corner_keep={corner_keep!r}: need "
-                            "0 < dominance <= 1 and corner_keep >= 0")
+    if not 0 < dominance <= 1 or not corner_keep >= 0 or not 0 < corner_dominance <= 1:
+        raise NurbscanError(f"dominance={dominance!r}, corner_keep={corner_keep!r}, "
+                            f"corner_dominance={corner_dominance!r}: need 0 < dominance <= 1, "
+                            "corner_keep >= 0 and 0 < corner_dominance <= 1")
     if unrefined not in ("keep", "fit", "drop"):
         raise NurbscanError(f"unrefined={unrefined!r}: must be 'keep', 'fit' or 'drop'")
     lin = as_float_planes(image, gamma=gamma)
@@ -1310,10 +1350,11 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         min_row_support, max_row_residual, keep_unsupported = 0.0, 0.0, True
         interpolation_rounds, collinear_rounds, pool_gap = 0, 0, 0.0
     pts = detect_edge_points(sig, sigma=sigma, threshold=threshold, valid=nrm.valid,
-                             sigma_along=sigma_along, dominance=min(dominance, corner_dominance),
+                             sigma_along=sigma_along,
+                             dominance=min(dominance, corner_dominance) if fine else dominance,
                              families=families and fine)
     corner_pts = None
-    if corner_dominance < dominance:
+    if fine and corner_dominance < dominance:
         # points found only below `dominance`: not traced, attached to the decoded lines
         main = pts.dominance >= dominance
         pts, corner_pts = pts.take(main), pts.take(~main)
@@ -1563,32 +1604,6 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         if tail_residual > 0:
             ke &= ~chain_tails(px, py, ldir[line], line, tail_residual)
         px, py, line, strength = px[ke], py[ke], line[ke], strength[ke]
-    corner = np.zeros(len(px), bool)
-    if corner_pts is not None and len(corner_pts.x) and len(px):
-        # the corner pixels' points extend the decoded lines where they continue them
-        vk = ldir[line] == 0
-        cx = np.where(vk, np.round(px), px).astype(np.int64)
-        cy = np.where(vk, py, np.round(py)).astype(np.int64)
-        att = attach_points(line, 2 * ldir[line] + ledge[line], cx, cy, corner_pts, (h, w))
-        a = np.nonzero(att >= 0)[0]
-        if len(a):
-            n0 = len(px)
-            line_all = np.r_[line, att[a]]
-            vk = ldir[line_all] == 0
-            along = np.where(vk, np.r_[py, corner_pts.y[a]], np.r_[px, corner_pts.x[a]])
-            o2 = np.lexsort((along, line_all))
-            px = np.r_[px, corner_pts.x[a]][o2]
-            py = np.r_[py, corner_pts.y[a]][o2]
-            strength = np.r_[strength, corner_pts.strength[a]][o2]
-            corner = np.r_[np.zeros(n0, bool), np.ones(len(a), bool)][o2]
-            line = line_all[o2]
-            vk = ldir[line] == 0
-            # each on the straight line through the chain's next decoded points
-            c0, okf = neighbour_fit(np.where(vk, py, px), np.where(vk, px, py), line, ~corner,
-                                    reach=6, both_sides=False)
-            off = np.abs(np.where(vk, px, py) - c0)
-            kc = ~corner | (okf & (off <= corner_residual))
-            px, py, line, strength, corner = px[kc], py[kc], line[kc], strength[kc], corner[kc]
     nl = len(lab)
     counts = np.bincount(line, minlength=nl)
     stop = np.cumsum(counts)
@@ -1599,9 +1614,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     sp = np.concatenate(spacing) if spacing else np.zeros(0)
     pitch_px = float(np.median(sp)) if len(sp) else 20.0
     band_px = pitch_px * pattern.band / pattern.pitch
-    # (the attached corner points are the least exact near the crossings: left out)
-    cam, proj, cb, ce, cl = grid_intersections(px[~corner], py[~corner], line[~corner], ldir,
-                                               lab, ledge, coord,
+    cam, proj, cb, ce, cl = grid_intersections(px, py, line, ldir, lab, ledge, coord,
                                                radius=max(2.0, 0.5 * band_px) + 1.5 * sigma)
     # whole-grid consistency: intersections that disagree with their neighbours reveal a
     # wrongly labelled line; lines with more inconsistent than consistent crossings are dropped
@@ -1655,6 +1668,14 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     else:
         votes_k, agree_k = votes[good], agree[good]
         cam, proj, cb, ce, cl = cam[okc], proj[okc], cb[okc], ce[okc], cl[okc]
+    if corner_pts is not None and len(px):
+        # the corner pixels' points extend the final lines where they continue them (after
+        # every filter and the intersections, which they leave as they are)
+        px, py, strength, line = extend_lines(px, py, strength, line, ldir, ledge, corner_pts,
+                                              (h, w), min_strength, corner_residual)
+        counts = np.bincount(line, minlength=len(lab))
+        stop = np.cumsum(counts)
+        start = stop - counts
     return DetectionResult(
         image_size=(w, h), x=px, y=py, strength=strength.astype(np.float32), line=line,
         direction=ldir, band=lab, edge=ledge, coord=coord, start=start, stop=stop,

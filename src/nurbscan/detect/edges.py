@@ -90,7 +90,8 @@ class EdgePoints:
     dominance : float32, optional
         The gradient's component along the point's family normal over the one along the
         other family's (``|g_x| / |g_y|`` for vertical-band edges without families): the
-        largest ``dominance`` of :func:`detect_edge_points` that finds the point.
+        largest ``dominance`` of :func:`detect_edge_points` that finds the point (for
+        horizontal-band edges, whose test is strict, any smaller one).
     """
 
     x: np.ndarray
