@@ -430,6 +430,23 @@ def row_order(x, y, cls) -> list:
     return out
 
 
+def _row_neighbours(label, line, cls, pattern, d: int, idx: np.ndarray) -> tuple:
+    """The labelled points of one family's rows (:func:`row_order`'s ``d`` and ``idx``):
+    whether each point is labelled, its edge coordinate (projector px, NaN if not), and the
+    positions in ``idx`` of the nearest labelled point at or before and at or after it
+    (-1 / ``len(idx)`` where none; the caller checks that it lies in the same row)."""
+    lab = label[line[idx]]
+    known = lab >= 0
+    c = np.full(len(idx), np.nan)
+    c[known] = pattern.edge_coordinate(("vertical", "horizontal")[d], lab[known],
+                                       cls[idx][known] % 2)
+    m = len(idx)
+    p = np.arange(m)
+    prv = np.maximum.accumulate(np.where(known, p, -1))
+    nxt = np.minimum.accumulate(np.where(known, p, m)[::-1])[::-1]
+    return known, c, prv, nxt
+
+
 def interpolate_labels(label, x, y, cls, line, lcode, pattern, span: float,
                        tol: float, min_votes: int = 3, min_agreement: float = 0.9,
                        require_colour: bool = True, rows: list | None = None) -> np.ndarray:
@@ -474,43 +491,30 @@ def interpolate_labels(label, x, y, cls, line, lcode, pattern, span: float,
         The labels, with the newly labelled lines.
     """
     seq = np.asarray(pattern.sequence)
-    vl, vv = [], []
-    for d, idx, run, acr in (row_order(x, y, cls) if rows is None else rows):
-        name = ("vertical", "horizontal")[d]
-        lab = label[line[idx]]
-        edge = cls[idx] % 2
-        known = lab >= 0
-        c = np.full(len(idx), np.nan)
-        c[known] = pattern.edge_coordinate(name, lab[known], edge[known])
+    rows = row_order(x, y, cls) if rows is None else rows
+    ci = np.full(len(x), np.nan)  # interpolated coordinate of the unlabelled points
+    for d, idx, run, acr in rows:
+        known, c, prv, nxt = _row_neighbours(label, line, cls, pattern, d, idx)
         m = len(idx)
-        p = np.arange(m)
-        prv = np.maximum.accumulate(np.where(known, p, -1))
-        nxt = np.minimum.accumulate(np.where(known, p, m)[::-1])[::-1]
-        edges = pattern.vertical_edges if d == 0 else pattern.horizontal_edges
-        flat = np.sort(edges.reshape(-1))
         ok = ~known & (prv >= 0) & (nxt < m)
         j1, j2 = np.clip(prv, 0, m - 1), np.clip(nxt, 0, m - 1)
         ok &= (run[j1] == run) & (run[j2] == run)
         with np.errstate(all="ignore"):
             ok &= (c[j2] > c[j1]) & (c[j2] - c[j1] <= span) & (acr[j2] > acr[j1])
-            ci = np.where(ok, c[j1] + (acr - acr[j1]) * (c[j2] - c[j1]) / (acr[j2] - acr[j1]),
-                          np.nan)
-        k = np.nonzero(np.isfinite(ci))[0]
-        if not len(k):
-            continue
-        e = edge[k]
+            ci[idx] = np.where(ok, c[j1] + (acr - acr[j1]) * (c[j2] - c[j1])
+                               / (acr[j2] - acr[j1]), np.nan)
+    # every edge point of the row between the two labelled ones is one pattern edge: as many
+    # points lie between them and this point as pattern edges (no edge missed or spurious on
+    # either side)
+    consistent = row_consistent(label, line, cls, ci, pattern, rows)
+    vl, vv = [], []
+    for d, edges in ((0, pattern.vertical_edges), (1, pattern.horizontal_edges)):
+        k = np.nonzero(consistent & (cls // 2 == d))[0]
+        e = cls[k] % 2
         b = nearest_band(edges, ci[k], e, pattern.pitch)
         good = np.abs(ci[k] - edges[b, e]) <= tol
-        # every edge point of the row between the two labelled ones is one pattern edge: as
-        # many points lie between them and this point as pattern edges (no edge missed or
-        # spurious on either side)
-        eidx = np.searchsorted(flat, edges[b, e])
-        good &= (eidx - np.searchsorted(flat, c[j1[k]])) == (k - j1[k])
-        good &= (np.searchsorted(flat, c[j2[k]]) - eidx) == (j2[k] - k)
-        vl.append(line[idx[k[good]]])
+        vl.append(line[k[good]])
         vv.append(b[good])
-    if not vl:
-        return label
     return _assign_votes(label, np.concatenate(vl), np.concatenate(vv), lcode, seq, min_votes,
                          min_agreement, accept_unknown=not require_colour)
 
@@ -665,15 +669,8 @@ def row_consistent(label, line, cls, pred, pattern, rows: list) -> np.ndarray:
     """
     out = np.zeros(len(line), bool)
     for d, idx, run, _ in rows:
-        name = ("vertical", "horizontal")[d]
-        lab = label[line[idx]]
-        known = lab >= 0
-        c = np.full(len(idx), np.nan)
-        c[known] = pattern.edge_coordinate(name, lab[known], cls[idx][known] % 2)
+        known, c, prv, nxt = _row_neighbours(label, line, cls, pattern, d, idx)
         m = len(idx)
-        p = np.arange(m)
-        prv = np.maximum.accumulate(np.where(known, p, -1))
-        nxt = np.minimum.accumulate(np.where(known, p, m)[::-1])[::-1]
         k = np.nonzero(~known & np.isfinite(pred[idx]))[0]
         edges = pattern.vertical_edges if d == 0 else pattern.horizontal_edges
         flat = np.sort(edges.reshape(-1))

@@ -250,10 +250,15 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         ratio2 = np.zeros((h, w), np.float32)
         ratio2[sy, sx] = comp[0] / np.maximum(comp[1], 1e-20)
         del sy, sx, comp, mag2, diff2, prod2
+
+        def vratio(iy, ix):
+            return np.sqrt(np.maximum(ratio2[iy, ix], 0.0))
     else:
         vmask = strong & (ax >= dominance * ay)
         hmask = strong & (ay > dominance * ax)
-        ratio2 = (ax / np.maximum(ay, 1e-10)) ** 2
+
+        def vratio(iy, ix):
+            return ax[iy, ix] / np.maximum(ay[iy, ix], 1e-10)
     out = []
     # vertical class: maximum of m along the row
     c = np.zeros((h, w), bool)
@@ -261,14 +266,13 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     iy, ix = np.nonzero(c)
     d = _subpixel(lx[iy, ix - 1], lx[iy, ix], lx[iy, ix + 1])
     out.append((ix + d, iy.astype(np.float64), ix, iy, np.where(gx[iy, ix] > 0, 0, 1),
-                ax[iy, ix], gx[iy, ix], gy[iy, ix], np.sqrt(ratio2[iy, ix])))
+                ax[iy, ix], gx[iy, ix], gy[iy, ix], vratio(iy, ix)))
     c[:] = False
     c[1:-1, :] = (hmask[1:-1, :] & (ay[1:-1, :] > ay[:-2, :]) & (ay[1:-1, :] >= ay[2:, :]))
     iy, ix = np.nonzero(c)
     d = _subpixel(ly[iy - 1, ix], ly[iy, ix], ly[iy + 1, ix])
     out.append((ix.astype(np.float64), iy + d, ix, iy, np.where(gy[iy, ix] > 0, 2, 3),
-                ay[iy, ix], gx[iy, ix], gy[iy, ix],
-                1.0 / np.sqrt(np.maximum(ratio2[iy, ix], 1e-20))))
+                ay[iy, ix], gx[iy, ix], gy[iy, ix], 1.0 / np.maximum(vratio(iy, ix), 1e-10)))
     cat = [np.concatenate([o[k] for o in out]) for k in range(9)]
     return EdgePoints(x=cat[0].astype(np.float64), y=cat[1].astype(np.float64),
                       ix=cat[2].astype(np.int32), iy=cat[3].astype(np.int32),

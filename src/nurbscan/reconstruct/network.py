@@ -245,7 +245,10 @@ def _by_interval(ln: NetLine, w: np.ndarray, k: np.ndarray, tangent: bool = Fals
     der = np.full((len(w), 3), np.nan)
     for s in np.unique(k[k >= 0]):
         sel = k == s
-        out[sel], der[sel] = _evaluate(ln.curves[s], w[sel], tangent=True)
+        if tangent:
+            out[sel], der[sel] = _evaluate(ln.curves[s], w[sel], tangent=True)
+        else:
+            out[sel] = _evaluate(ln.curves[s], w[sel])
     return (out, der) if tangent else out
 
 
@@ -510,11 +513,8 @@ def _interval(ln: NetLine, a: float, b: float, reach: float) -> int:
     return int(_covers(ln, np.array([a]), np.array([b]), 0.0, reach)[0])
 
 
-def _sample(ln: NetLine, a: float, b: float, reach: float = 0.0):
-    """The line's 3-D curve covering [a, b] as a function of ``w`` (array -> (n, 3))."""
-    k = _interval(ln, a, b, reach)
-    if k < 0:  # (gordon_patch fills such lines span by span, _fill_gaps): the nearest interval
-        k = int(np.argmin(np.abs(0.5 * (ln.starts + ln.ends) - 0.5 * (a + b))))
+def _curve_function(ln: NetLine, k: int):
+    """The line's 3-D curve of interval ``k`` as a function of ``w`` (array -> (n, 3))."""
     return lambda w: _evaluate(ln.curves[k], np.atleast_1d(np.asarray(w, float)))
 
 
@@ -687,13 +687,14 @@ def gordon_patch(vlines, hlines, rect, per_span: int = 6, reach: float = 0.0,
     ou, ov = int(du0 > 0), int(dv0 > 0)  # offset of the real curves
     # each line's own curve where one interval covers its whole range; otherwise (a line
     # split into intervals, or missing a span as complete_cells judges it) span by span
-    if any(_interval(ln, c[0], c[-1], reach) < 0
-           or np.any(_covers(ln, c_r[:-1], c_r[1:], margin, reach) < 0)
-           for lines_, c, c_r in ((V, cv, cv_r), (H, cu, cu_r)) for ln in lines_):
+    kv = [_interval(ln, cv[0], cv[-1], reach) for ln in V]
+    kh = [_interval(ln, cu[0], cu[-1], reach) for ln in H]
+    if min(kv + kh) < 0 or any(np.any(_covers(ln, c_r[:-1], c_r[1:], margin, reach) < 0)
+                               for lines_, c_r in ((V, cv_r), (H, cu_r)) for ln in lines_):
         vfun, hfun = _fill_gaps(V, H, cu_r, cv_r, reach, margin)
     else:
-        vfun = [_sample(ln, cv[0], cv[-1], reach) for ln in V]
-        hfun = [_sample(ln, cu[0], cu[-1], reach) for ln in H]
+        vfun = [_curve_function(ln, k) for ln, k in zip(V, kv, strict=True)]
+        hfun = [_curve_function(ln, k) for ln, k in zip(H, kh, strict=True)]
     # virtual curves: interpolate the other family's points across the patch (cubic,
     # not-a-knot); a corner of two extended sides: see point()
     iu = [i for i in range(len(cu)) if not ou <= i < ou + len(cu_r)]
