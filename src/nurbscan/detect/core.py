@@ -31,6 +31,7 @@ from .lines import (
     join_collinear,
     local_residual,
     neighbour_fit,
+    smooth_chains,
     trace_lines,
 )
 from .normalize import normalize
@@ -1058,7 +1059,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                 epipolar=None,
                 epipolar_radius: float = 2.0, epipolar_rounds: int = 2,
                 tail_residual: float | None = None, min_paired: int = 2,
-                sigma_per_band: float = 8.0) -> DetectionResult:
+                sigma_per_band: float = 8.0, smooth_reach: int = 3) -> DetectionResult:
     """Find, trace and decode the grid's edge lines in one photograph.
 
     Parameters
@@ -1283,6 +1284,11 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         dropped. Where a band is squeezed or half hidden its partner edge is often missing:
         ``nurbscan reconstruct`` keeps such lines (0) and leaves them to the network's
         crossing test (teapot demo scan: Gordon coverage 83.4 -> 84.2 %).
+    smooth_reach : int
+        Half-width (camera px along the edge) of the local weighted line that smooths each
+        final chain (:func:`~nurbscan.detect.lines.smooth_chains`); 0 keeps the points as
+        measured. The intersections are fitted to the measured points. 7.1 MP teapot view:
+        RMS 0.0468 -> 0.0427 px; demo scan views 0.0453 -> 0.0422 px (mean of 8).
     families : bool
         Tell vertical-band from horizontal-band edge pixels by the two families' local
         directions (:func:`~nurbscan.detect.edges.family_normals`) instead of by ``|g_x|``
@@ -1665,6 +1671,14 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     else:
         votes_k, agree_k = votes[good], agree[good]
         cam, proj, cb, ce, cl = cam[okc], proj[okc], cb[okc], ce[okc], cl[okc]
+    if smooth_reach > 0 and len(px):
+        # after every point filter (they judge the points as measured) and the intersections:
+        # the points' noise is partly independent from row to row, and a local weighted line
+        # along each chain lowers it (the squared strength is the inverse variance)
+        vk = ldir[line] == 0
+        a = smooth_chains(np.where(vk, py, px), np.where(vk, px, py), line,
+                          strength.astype(np.float64) ** 2, smooth_reach)
+        px, py = np.where(vk, a, px), np.where(vk, py, a)
     if corner_pts is not None and len(px):
         # the corner pixels' points extend the final lines where they continue them (after
         # every filter and the intersections, which they leave as they are)
