@@ -382,8 +382,11 @@ def test_channel_refinement_removes_crossing_bias():
     """A red vertical band crossed by a tilted green horizontal band (exact blurred images).
 
     In the channel sum the green band's tilted edge adds an x derivative near the crossing and
-    shifts the red band's edge points; the red channel alone is undisturbed. The first pass
-    (sum signal) must show the bias, the per-channel second pass must remove it."""
+    shifts the red band's edge points found along the rows (``families=False``); the red
+    channel alone is undisturbed. That first pass must show the bias, the per-channel second
+    pass must remove it. With the families' directions, the first pass takes the derivative
+    along the green band's edges, which does not see them (:func:`across_operators`): the
+    bias is gone from the sum signal as well (max 0.38 -> 0.03 px)."""
     from nurbscan.detect.edges import refine_by_channels
 
     h, w = 140, 140
@@ -396,13 +399,19 @@ def test_channel_refinement_removes_crossing_bias():
     green = ndtr(dh / 1.0) - ndtr((dh - 9.0) / 1.0)
     chans = [red.astype(np.float32), green.astype(np.float32), np.zeros((h, w), np.float32)]
     sig = chans[0] + chans[1]
-    pts = detect_edge_points(sig, sigma=1.2)
-    k = (pts.cls < 2) & (pts.y > 15) & (pts.y < h - 15)
-    x, y, ix, iy, cls = pts.x[k], pts.y[k], pts.ix[k], pts.iy[k], pts.cls[k]
 
     def err(xp, yp, c):
         d = (xp - 60.3 - tv * (yp - 70)) / np.sqrt(1 + tv**2)
         return np.where(c == 0, d, d - 9.0)
+
+    fam = detect_edge_points(sig, sigma=1.2)
+    k = (fam.cls < 2) & (fam.y > 15) & (fam.y < h - 15)
+    ef = err(fam.x[k], fam.y[k], fam.cls[k])
+    ef = ef[np.abs(ef) < 1.5]
+    assert len(ef) > 150 and np.abs(ef).max() < 0.04 and np.sqrt(np.mean(ef ** 2)) < 0.012
+    pts = detect_edge_points(sig, sigma=1.2, families=False)
+    k = (pts.cls < 2) & (pts.y > 15) & (pts.y < h - 15)
+    x, y, ix, iy, cls = pts.x[k], pts.y[k], pts.ix[k], pts.iy[k], pts.cls[k]
 
     # only the red band's edges (the green band's own edges are not of this class here)
     on = np.abs(err(x, y, cls)) < 1.5
@@ -415,6 +424,25 @@ def test_channel_refinement_removes_crossing_bias():
     assert np.abs(e0).max() > 0.05  # the first pass is biased near the crossing
     assert np.sqrt(np.mean(e1[done] ** 2)) < 0.01
     assert np.abs(e1[done]).max() < 0.03
+
+
+def test_across_operators_take_each_familys_own_component():
+    """g . A_v = a and g . A_h = b for a gradient g = a n_v + b n_h (oblique families); the
+    image axes where the families are upright."""
+    from nurbscan.detect.edges import across_operators
+
+    tv = np.array([[0.0, np.radians(170.0)], [np.radians(20.0), 0.3]])
+    th = np.array([[np.pi / 2, np.radians(120.0)], [np.radians(60.0), 1.6]])
+    av, ah = across_operators(tv, th, (2, 2))  # one pixel per tile: no interpolation
+    assert np.allclose(av[:, 0, 0], [1, 0], atol=1e-7) and np.allclose(ah[:, 0, 0], [0, 1],
+                                                                         atol=1e-7)
+    t = np.where(tv > np.pi / 2, tv - np.pi, tv)
+    nv = np.stack([np.cos(t), np.sin(t)])
+    nh = np.stack([np.cos(th), np.sin(th)])
+    for a, b in ((1.0, 0.0), (0.0, 1.0), (0.7, -0.4)):
+        g = a * nv + b * nh
+        assert np.allclose((g * av).sum(0), a, atol=1e-6)
+        assert np.allclose((g * ah).sum(0), b, atol=1e-6)
 
 
 def test_join_collinear_pieces():
@@ -1029,40 +1057,63 @@ def test_row_consistent_counts_the_edges_between(pattern):
 def test_family_fit_labels_the_pieces_of_an_oblique_view(pattern, oblique_view, oblique_result,
                                                          oblique_colour_only):
     """The horizontal pieces that the colour windows leave unlabelled between labelled ones
-    take their bands from the family's own coordinate map (measured: coverage 0.450 ->
-    0.504, labels 100 %, no wrong line, rms 0.115 -> 0.118 px)."""
+    take their bands from the family's own coordinate map (measured: coverage 0.615 ->
+    0.648, labels 100 %, no wrong line, rms 0.070 -> 0.070 px; before ``oblique`` the colour
+    windows labelled less of this view: 0.450 -> 0.504)."""
     truth = oblique_view[2]
     ev0 = evaluate_detection(oblique_colour_only, truth, pattern)
     ev = evaluate_detection(oblique_result, truth, pattern)
-    assert ev["coverage"] > ev0["coverage"] + 0.04, (ev0, ev)
+    assert ev["coverage"] > ev0["coverage"] + 0.025, (ev0, ev)
     assert ev["label_rate"] >= 0.995 and ev["wrong_lines_over_20px"] == 0, ev
     assert ev["rms_px"] < 0.15, ev
 
 
-def test_new_chain_ends_left_by_the_row_filters_are_tested(pattern, oblique_view):
+def test_oblique_families_measured_by_their_own_components(pattern):
+    """A sheared grid (the two families' normals at 20 and 60 degrees, as on a surface seen
+    obliquely): measuring each family by its own gradient component (``oblique``) instead of
+    g_x / g_y takes the crossing bands' tilted edges out of the profiles (measured: rms 0.069
+    -> 0.037 px, coverage 0.572 -> 0.701, intersections 0.55 -> 0.17 px)."""
+    g, w, px, py = synth_view(pattern, 480, 360, noise=0.01, seed=1,
+                              field=_oblique_field(20.0, 60.0, 0.5))
+    truth = {"proj_x": px, "proj_y": py, "lit": np.ones(px.shape, bool),
+             "surface_id": np.zeros(px.shape, np.int32)}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        on, off = (evaluate_detection(detect_grid(g, pattern, w, oblique=o), truth, pattern)
+                   for o in (True, False))
+    assert on["rms_px"] < 0.045 and on["rms_px"] < 0.6 * off["rms_px"], (off, on)
+    assert on["coverage"] > off["coverage"] + 0.08, (off, on)
+    assert on["intersection_rms_px"] < 0.5 * off["intersection_rms_px"], (off, on)
+    assert on["label_rate"] >= 0.995 and on["wrong_lines_over_20px"] == 0, on
+
+
+def test_new_chain_ends_left_by_the_row_filters_are_tested(teapot):
     """The row-support filters leave new chain ends beside the points they drop; the gross
-    outliers among them go too (measured on the oblique view: 8 points dropped, 7 of them
-    over 1 px off, while the kept points' 99th percentile is 0.42 px; RMS 0.118 -> 0.112)."""
+    outliers among them go too (1280 x 960 teapot view: 40 points dropped, 5 of them over
+    1 px off, while the kept points' 99th percentile is 0.22 px; RMS 0.0583 -> 0.0562 px.
+    The oblique test view had 7 such outliers among 8 before ``oblique`` measured its edges
+    by the families' own gradient components, and has none now)."""
     from nurbscan.detect.evaluate import _field_at
 
-    g, w, truth = oblique_view
+    v, pat = teapot
+    truth = v.truth
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         # the points as measured (the smoothing of the final chains moves their neighbours)
-        a = detect_grid(g, pattern, w, new_end_residual=0, smooth_reach=0)
-        b = detect_grid(g, pattern, w, smooth_reach=0)
+        a = detect_grid(v.grid, pat, v.white, new_end_residual=0, smooth_reach=0)
+        b = detect_grid(v.grid, pat, v.white, smooth_reach=0)
     kept = set(zip(b.x.round(4), b.y.round(4), strict=True))
     gone = np.array([p not in kept for p in zip(a.x.round(4), a.y.round(4), strict=True)])
-    assert len(b.x) == len(a.x) - gone.sum() and gone.sum() >= 4
-    err = np.zeros(len(a.x))
+    assert len(b.x) == len(a.x) - gone.sum() and gone.sum() >= 10
+    err = np.full(len(a.x), np.nan)
     for d, f in ((0, truth["proj_x"]), (1, truth["proj_y"])):
         k = np.nonzero(a.point_direction == d)[0]
-        v, gx, gy = _field_at(np.asarray(f, float), a.x[k], a.y[k])
-        err[k] = np.abs(v - a.coord[a.line[k]]) / np.hypot(gx, gy)
-    assert np.mean(err[gone] > 1.0) >= 0.75, err[gone]
-    assert np.percentile(err[~gone], 99) < 0.5
-    rms = [evaluate_detection(r, truth, pattern)["rms_px"] for r in (a, b)]
-    assert rms[1] < rms[0] - 0.003, rms
+        val, gx, gy = _field_at(np.nan_to_num(np.asarray(f, float)), a.x[k], a.y[k])
+        err[k] = np.abs(val - a.coord[a.line[k]]) / np.hypot(gx, gy)
+    assert np.sum(err[gone] > 1.0) >= 3, np.sort(err[gone])
+    assert np.nanpercentile(err[~gone], 99) < 0.3
+    rms = [evaluate_detection(r, truth, pat)["rms_px"] for r in (a, b)]
+    assert rms[1] < rms[0] - 0.001, rms
 
 
 def test_chain_tails_flags_a_tail_that_veers_off():

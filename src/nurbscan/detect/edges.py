@@ -92,6 +92,10 @@ class EdgePoints:
         other family's (``|g_x| / |g_y|`` for vertical-band edges without families): the
         largest ``dominance`` of :func:`detect_edge_points` that finds the point (for
         horizontal-band edges, whose test is strict, any smaller one).
+    across : float32 (N, 2), optional
+        The vector ``A`` whose product with the gradient, ``g . A``, is the point's own
+        family's edge derivative (:func:`across_operators`; ``(1, 0)`` or ``(0, 1)``
+        without families): the row (column) profile of ``g . A`` peaks at the point.
     """
 
     x: np.ndarray
@@ -103,6 +107,7 @@ class EdgePoints:
     gx: np.ndarray
     gy: np.ndarray
     dominance: np.ndarray | None = None
+    across: np.ndarray | None = None
 
     def take(self, index) -> EdgePoints:
         """The points selected by ``index`` (bool mask or integer indices)."""
@@ -174,6 +179,44 @@ def family_normals(gx: np.ndarray, gy: np.ndarray, strong: np.ndarray, tile: int
     return np.where(two, tv, 0.0), np.where(two, th, np.pi / 2)
 
 
+def across_operators(theta_v: np.ndarray, theta_h: np.ndarray, shape: tuple[int, int]
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel vectors that take each family's own edge derivative from the gradient.
+
+    With the families' unit normals ``n_v``, ``n_h`` (angles ``theta_v``, ``theta_h`` per tile,
+    :func:`family_normals`), a gradient is ``g = a n_v + b n_h``: ``a`` from the vertical-band
+    edges, ``b`` from the horizontal ones. The derivative along the horizontal edges' tangent
+    ``m_v`` (perpendicular to ``n_h``) does not see the horizontal edges at all, and
+    ``g . m_v / (n_v . m_v) = a``; likewise ``b`` along the vertical edges' tangent. Where the
+    families are upright these are the plain ``g_x`` and ``g_y``; on a surface seen
+    obliquely, where the two families meet at a shallow angle, ``g_x`` also carries the tilted
+    horizontal edges (their derivative across the row) and shifts the vertical edges'
+    peaks near every crossing band, while ``a`` keeps only the vertical edge: the
+    maximum of ``|a|`` along the row lies on the vertical edge as that of ``|g_x|`` does
+    on an upright grid. ``n_v . m_v`` is the sine of the angle between the families and is
+    kept at least 0.25 (15 degrees).
+
+    Returns
+    -------
+    across_v, across_h : ndarray (2, H, W) float32
+        ``m_v / (n_v . m_v)`` and ``m_h / (n_h . m_h)``, bilinearly interpolated between the
+        tile centres.
+    """
+    h, w = shape
+    tv = np.where(theta_v > np.pi / 2, theta_v - np.pi, theta_v)  # n_v towards +x
+    nv = np.stack([np.cos(tv), np.sin(tv)])
+    nh = np.stack([np.cos(theta_h), np.sin(theta_h)])  # towards +y (theta_h in [0, pi))
+    out = []
+    for n_own, n_other in ((nv, nh), (nh, nv)):
+        m = np.stack([-n_other[1], n_other[0]])  # the other family's edge tangent
+        dot = (m * n_own).sum(0)
+        m = np.where(dot < 0, -m, m)
+        a = m / np.maximum(np.abs(dot), 0.25)
+        out.append(np.stack([cv2.resize(c.astype(np.float32), (w, h),
+                                        interpolation=cv2.INTER_LINEAR) for c in a]))
+    return out[0], out[1]
+
+
 def _subpixel(lm: np.ndarray, l0: np.ndarray, lp: np.ndarray) -> np.ndarray:
     den = lm - 2.0 * l0 + lp
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -183,7 +226,8 @@ def _subpixel(lm: np.ndarray, l0: np.ndarray, lp: np.ndarray) -> np.ndarray:
 
 def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float = 0.06,
                        valid: np.ndarray | None = None, sigma_along: float | None = None,
-                       dominance: float = 1.0, families: bool = True) -> EdgePoints:
+                       dominance: float = 1.0, families: bool = True,
+                       oblique: bool = True) -> EdgePoints:
     """Find the sub-pixel edge points of ``signal`` (module notes).
 
     Parameters
@@ -207,6 +251,13 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         components are taken along the local normals of the two families instead of x and y.
     families : bool
         Classify by the local family directions (:func:`family_normals`, module notes).
+    oblique : bool
+        With ``families``, find each family's edges by its own component of the gradient
+        (:func:`across_operators`: the derivative along the other family's edges) instead of
+        ``g_x`` and ``g_y``; they differ where the families are not upright. 7.1 MP teapot
+        view: coverage 0.686 -> 0.703, RMS 0.0427 -> 0.0406 px; on the surfaces where the
+        two families meet at less than 60 degrees the crossing bands' tilted edges shift the
+        row and column peaks of ``g_x`` and ``g_y``.
 
     Returns
     -------
@@ -215,10 +266,6 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     gx, gy = gradient(signal, sigma, sigma_along)
     m = cv2.magnitude(gx, gy)
     h, w = m.shape
-    ax = np.abs(gx)
-    ay = np.abs(gy)
-    lx = np.log(np.maximum(ax, 1e-6))
-    ly = np.log(np.maximum(ay, 1e-6))
     strong = m > threshold
     if valid is not None:
         strong &= valid
@@ -226,6 +273,10 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     b = int(np.ceil(3.0 * max(sigma, sigma_along or 0.0))) + 1
     strong[:b] = strong[-b:] = False
     strong[:, :b] = strong[:, -b:] = False
+    axes = (np.array([1.0, 0.0], np.float32)[:, None, None],
+            np.array([0.0, 1.0], np.float32)[:, None, None])
+    dv, dh = gx, gy
+    av, ah = axes
     if families:
         # the gradient's components along the two families' local normals
         tv, th = family_normals(gx, gy, strong)
@@ -253,38 +304,58 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
 
         def vratio(iy, ix):
             return np.sqrt(np.maximum(ratio2[iy, ix], 0.0))
+
+        if oblique:
+            # each family's edges by its own gradient component, the derivative along the
+            # other family's edges (the peaks of g_x, g_y move where a tilted crossing band's
+            # edge adds to them)
+            av, ah = across_operators(tv, th, (h, w))
+            dv = gx * av[0] + gy * av[1]
+            dh = gx * ah[0] + gy * ah[1]
     else:
-        vmask = strong & (ax >= dominance * ay)
-        hmask = strong & (ay > dominance * ax)
+        vmask = strong & (np.abs(gx) >= dominance * np.abs(gy))
+        hmask = strong & (np.abs(gy) > dominance * np.abs(gx))
 
         def vratio(iy, ix):
-            return ax[iy, ix] / np.maximum(ay[iy, ix], 1e-10)
+            return np.abs(gx[iy, ix]) / np.maximum(np.abs(gy[iy, ix]), 1e-10)
+
+    def operator(a, iy, ix):
+        if a.shape[1] == 1:
+            return np.repeat(a[:, 0, 0][None, :], len(iy), axis=0)
+        return a[:, iy, ix].T
+
+    ax = np.abs(dv)
+    ay = np.abs(dh)
+    lx = np.log(np.maximum(ax, 1e-6))
+    ly = np.log(np.maximum(ay, 1e-6))
     out = []
     # vertical class: maximum of m along the row
     c = np.zeros((h, w), bool)
     c[:, 1:-1] = (vmask[:, 1:-1] & (ax[:, 1:-1] > ax[:, :-2]) & (ax[:, 1:-1] >= ax[:, 2:]))
     iy, ix = np.nonzero(c)
     d = _subpixel(lx[iy, ix - 1], lx[iy, ix], lx[iy, ix + 1])
-    out.append((ix + d, iy.astype(np.float64), ix, iy, np.where(gx[iy, ix] > 0, 0, 1),
-                ax[iy, ix], gx[iy, ix], gy[iy, ix], vratio(iy, ix)))
+    out.append((ix + d, iy.astype(np.float64), ix, iy, np.where(dv[iy, ix] > 0, 0, 1),
+                ax[iy, ix], gx[iy, ix], gy[iy, ix], vratio(iy, ix), operator(av, iy, ix)))
     c[:] = False
     c[1:-1, :] = (hmask[1:-1, :] & (ay[1:-1, :] > ay[:-2, :]) & (ay[1:-1, :] >= ay[2:, :]))
     iy, ix = np.nonzero(c)
     d = _subpixel(ly[iy - 1, ix], ly[iy, ix], ly[iy + 1, ix])
-    out.append((ix.astype(np.float64), iy + d, ix, iy, np.where(gy[iy, ix] > 0, 2, 3),
-                ay[iy, ix], gx[iy, ix], gy[iy, ix], 1.0 / np.maximum(vratio(iy, ix), 1e-10)))
-    cat = [np.concatenate([o[k] for o in out]) for k in range(9)]
+    out.append((ix.astype(np.float64), iy + d, ix, iy, np.where(dh[iy, ix] > 0, 2, 3),
+                ay[iy, ix], gx[iy, ix], gy[iy, ix], 1.0 / np.maximum(vratio(iy, ix), 1e-10),
+                operator(ah, iy, ix)))
+    cat = [np.concatenate([o[k] for o in out]) for k in range(10)]
     return EdgePoints(x=cat[0].astype(np.float64), y=cat[1].astype(np.float64),
                       ix=cat[2].astype(np.int32), iy=cat[3].astype(np.int32),
                       cls=cat[4].astype(np.int8), strength=cat[5].astype(np.float32),
                       gx=cat[6].astype(np.float32), gy=cat[7].astype(np.float32),
-                      dominance=cat[8].astype(np.float32))
+                      dominance=cat[8].astype(np.float32),
+                      across=cat[9].astype(np.float32))
 
 
 def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray,
                        colour: np.ndarray, x: np.ndarray, y: np.ndarray, sigma: float,
                        sigma_along: float | None = None, clean: float = 0.25,
-                       normal: np.ndarray | None = None
+                       normal: np.ndarray | None = None, across: np.ndarray | None = None
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Second, per-channel sub-pixel pass for decoded edge points (method.md section 2).
 
@@ -318,6 +389,10 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     normal : (N, 2) float, optional
         Unit normal of each edge (the first pass's gradient direction); default the row
         direction (1, 0) for vertical-band edges and the column direction (0, 1) otherwise.
+    across : (N, 2) float, optional
+        The edge derivative is ``g . across`` (:attr:`EdgePoints.across`, the derivative along
+        the other family's edges); default ``g_x`` for vertical-band edges and ``g_y``
+        otherwise.
 
     Returns
     -------
@@ -346,15 +421,18 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     jx = np.clip(jx, 0, w - 1)
     jy = np.clip(jy, 0, h - 1)
     mag = []
+    if across is None:
+        across = np.where(vert[:, None], [1.0, 0.0], [0.0, 1.0])
+    ux, uy = (np.asarray(across, np.float64).T[:, :, None] * sgn[None, :, None])
     for c in range(3):
         gx, gy = gradient(channels[c], sigma, sigma_along)
-        across = np.where(vert[:, None], gx[jy, jx], gy[jy, jx]) * sgn[:, None]
+        prof = gx[jy, jx] * ux + gy[jy, jx] * uy
         cx, cy = gx[iy, ix], gy[iy, ix]
         along = nx * cy - ny * cx
         normal_d = nx * cx + ny * cy
-        mag.append(across[:, 1])
-        ok = colour[:, c] & (np.abs(along) <= clean * np.abs(normal_d)) & (across[:, 1] > 0)
-        acc += np.where(ok[:, None], across, 0.0)
+        mag.append(prof[:, 1])
+        ok = colour[:, c] & (np.abs(along) <= clean * np.abs(normal_d)) & (prof[:, 1] > 0)
+        acc += np.where(ok[:, None], prof, 0.0)
         used += ok
         del gx, gy
     big = np.max(np.stack(mag, 1), axis=1)
