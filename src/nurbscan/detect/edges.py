@@ -15,7 +15,9 @@ A pixel's family is the one whose local direction its gradient is closer to
 (:func:`family_normals`): on a surface seen obliquely the vertical bands can tilt past 45
 degrees (the teapot's lid: the two families meet at about 33 degrees there), where the plain
 rule ``|s_x| >= |s_y|`` would call them horizontal. Where the two families are upright the
-rule is the plain one.
+rule is the plain one. There, too, ``s_x`` and ``s_y`` stand for each family's own component
+of the gradient (:func:`across_operators`: the derivative along the other family's edges),
+which a tilted crossing band's edge does not disturb as it disturbs the row derivative.
 
 For a straight edge the maximum of the derivative along any line across it lies on the edge,
 so the row (column) search finds the same points as a search along the gradient, on the pixel
@@ -329,7 +331,7 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     lx = np.log(np.maximum(ax, 1e-6))
     ly = np.log(np.maximum(ay, 1e-6))
     out = []
-    # vertical class: maximum of m along the row
+    # vertical class: maximum of the vertical family's derivative along the row
     c = np.zeros((h, w), bool)
     c[:, 1:-1] = (vmask[:, 1:-1] & (ax[:, 1:-1] > ax[:, :-2]) & (ax[:, 1:-1] >= ax[:, 2:]))
     iy, ix = np.nonzero(c)
