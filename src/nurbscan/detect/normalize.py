@@ -171,3 +171,29 @@ def edge_signal(norm: np.ndarray) -> np.ndarray:
     not displaced by the crossing band (likewise for columns).
     """
     return np.ascontiguousarray(norm[..., 0] + norm[..., 1] + norm[..., 2], dtype=np.float32)
+
+
+def noise_level(signal: np.ndarray, valid: np.ndarray | None = None, step: int = 3) -> float:
+    """Standard deviation of the white noise in ``signal`` (H, W), robust to its edges.
+
+    Immerkaer's estimator: the 3 x 3 mask ``[[1, -2, 1], [-2, 4, -2], [1, -2, 1]]`` (the
+    difference of two Laplacians) cancels every locally linear structure and passes white
+    noise of deviation s with deviation 6 s; the median of its absolute response over the
+    ``valid`` pixels (every ``step``-th row and column), over 6 x 0.6745 (the median of a
+    unit half-normal), gives s. The median leaves out the band edges, whose curvature the
+    mask does pass. Default-noise teapot views (normalised signal): 0.020; 3x noise 0.056;
+    noise-free renders 0.004 (aliasing and interpolation).
+
+    References
+    ----------
+    .. [1] J. Immerkaer, "Fast noise variance estimation", Computer Vision and Image
+       Understanding 64(2), 300-302, 1996.
+    """
+    k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    r = np.abs(cv2.filter2D(np.asarray(signal, np.float32), -1, k,
+                            borderType=cv2.BORDER_REFLECT))[1:-1:step, 1:-1:step]
+    if valid is not None:
+        r = r[np.asarray(valid, bool)[1:-1:step, 1:-1:step]]
+    if r.size == 0:
+        return float("nan")
+    return float(np.median(r) / (6.0 * 0.6745))
