@@ -1093,7 +1093,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         :func:`auto_sigma` of the band width measured in a first pass.
     sigma_per_band : float, optional
         The default ``sigma`` is the band width over this (:func:`auto_sigma`); by default
-        10 at the noise of the default render and 8 from 3x that noise
+        10 at the noise of the default render and 8 from a noise 2.5 times that
         (:func:`per_band_for_noise` of the measured noise). A narrower filter resolves more
         of the bands that the surface squeezes (``nurbscan reconstruct`` uses 10: teapot
         demo scan, Gordon coverage 84.2 -> 86.2 %).
@@ -1102,7 +1102,8 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     threshold : float
         Least gradient of an edge in the normalised signal, per px.
     min_strength : float
-        Least gradient of an edge point kept in the result, per px.
+        Least edge derivative (:attr:`~nurbscan.detect.edges.EdgePoints.strength`) of an
+        edge point kept in the result, per px.
     min_length : int
         Fewest points of an edge line.
     min_votes, min_agreement : int, float
@@ -1313,7 +1314,8 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         derivative along the other family's edges (``families``;
         :func:`~nurbscan.detect.edges.across_operators`), instead of the row and column
         derivatives, which the crossing bands' edges disturb where the two families are not
-        upright. 7.1 MP teapot view: coverage 0.680 -> 0.696 (within 2 px of a crossing
+        upright (only with ``families``, where the bands are resolved). 7.1 MP teapot view:
+        coverage 0.680 -> 0.696 (within 2 px of a crossing
         band 0.529 -> 0.571), RMS 0.0427 -> 0.0405 px, intersections 0.153 -> 0.124 px;
         teapot demo scan reconstruction: Gordon coverage 90.09 -> 90.24 %, Gordon mean
         0.0128 -> 0.0122 mm.
@@ -1414,7 +1416,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     px, py = pts.x[order], pts.y[order]
     cls = pts.cls[order].astype(np.int64)
     ix, iy = pts.ix[order], pts.iy[order]
-    op = pts.across[order] if pts.across is not None else None
+    op = pts.across[order]
     pstrength = pts.strength[order]
     ratio = pattern.band / pattern.pitch
     # a point is strict where its own gradient dominates the other direction's by corner_keep
@@ -1610,7 +1612,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                               np.c_[-slope / nn, 1.0 / nn])
         px, py, done = refine_by_channels(chn, ix[keep], iy[keep], cls[keep], colour, px, py,
                                           sigma, sigma_along, normal=normal,
-                                          across=None if op is None else op[keep])
+                                          across=op[keep])
         del chn
         # points with no clean channel (their crossing band shares the band's channels) are
         # placed on the straight line through their re-measured chain neighbours
@@ -1687,13 +1689,13 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
             if not np.any(off):
                 break
             keep_pt[kk[off]] = False
-        drop |= np.bincount(line[keep_pt], minlength=nl) < min_length
+    kept_n = np.bincount(line[keep_pt], minlength=nl)
+    drop |= kept_n < min_length
     if min_checked_length > 0 and np.isfinite(band_px_est):
         # a short line (counted after the point filters) that no consistent intersection
         # confirms (a piece of an occluding contour or of a shadow edge that took a
         # neighbour's label) is dropped
-        drop |= (good_n == 0) & (np.bincount(line[keep_pt], minlength=nl)
-                                 < min_checked_length * band_px_est * pattern.pitch
+        drop |= (good_n == 0) & (kept_n < min_checked_length * band_px_est * pattern.pitch
                                  / pattern.band)
     if np.any(drop) or not np.all(keep_pt):
         keepl = ~drop

@@ -15,16 +15,18 @@ A pixel's family is the one whose local direction its gradient is closer to
 (:func:`family_normals`): on a surface seen obliquely the vertical bands can tilt past 45
 degrees (the teapot's lid: the two families meet at about 33 degrees there), where the plain
 rule ``|s_x| >= |s_y|`` would call them horizontal. Where the two families are upright the
-rule is the plain one. There, too, ``s_x`` and ``s_y`` stand for each family's own component
-of the gradient (:func:`across_operators`: the derivative along the other family's edges),
-which a tilted crossing band's edge does not disturb as it disturbs the row derivative.
+rule is the plain one. With the families, ``s_x`` and ``s_y`` below stand for each family's
+own component of the gradient (:func:`across_operators`: the derivative along the other
+family's edges); they are the plain derivatives where the families are upright.
 
 For a straight edge the maximum of the derivative along any line across it lies on the edge,
 so the row (column) search finds the same points as a search along the gradient, on the pixel
-grid; and the row derivative ``s_x`` of the summed signal is not disturbed by a crossing
-horizontal band (see :func:`~nurbscan.detect.normalize.edge_signal`), where the gradient
-magnitude would be. The sub-pixel position is the vertex of a quadratic fitted to ``ln |s_x|``
-at the three samples across the crossing (offsets -1, 0, +1):
+grid; and the vertical family's derivative ``s_x`` of the summed signal is not disturbed by
+a crossing horizontal band (see :func:`~nurbscan.detect.normalize.edge_signal`), where the
+gradient magnitude would be: the derivative along the band's edges does not see them. (The
+plain row derivative has that property only for an upright crossing band.) The sub-pixel
+position is the vertex of a quadratic fitted to ``ln |s_x|`` at the three samples across the
+crossing (offsets -1, 0, +1):
 ``d = (l- - l+) / (2 (l- - 2 l0 + l+))``. The derivative of a Gaussian-blurred step is a
 Gaussian, whose logarithm is exactly a parabola, so this fit of the zero of the second
 derivative is unbiased for an isolated blurred step edge, at any tilt (the profile along a row
@@ -75,7 +77,7 @@ def gradient(signal: np.ndarray, sigma: float, sigma_along: float | None = None
 
 @dataclass(frozen=True)
 class EdgePoints:
-    """Sub-pixel edge points, all arrays of shape (N,).
+    """Sub-pixel edge points, arrays of shape (N,) (``across``: (N, 2)).
 
     Attributes
     ----------
@@ -86,7 +88,9 @@ class EdgePoints:
     cls : int8
         0 vertical rising, 1 vertical falling, 2 horizontal rising, 3 horizontal falling.
     strength : float32
-        Peak gradient magnitude (per px of the normalised signal) at the point.
+        Peak of the point's edge derivative (its own family's component of the gradient,
+        :func:`across_operators`; ``|g_x|`` or ``|g_y|`` without families), per px of the
+        normalised signal.
     gx, gy : float32
         Gradient of the smoothed signal at the edge pixel.
     dominance : float32, optional
@@ -196,13 +200,13 @@ def across_operators(theta_v: np.ndarray, theta_h: np.ndarray, shape: tuple[int,
     peaks near every crossing band, while ``a`` keeps only the vertical edge: the
     maximum of ``|a|`` along the row lies on the vertical edge as that of ``|g_x|`` does
     on an upright grid. ``n_v . m_v`` is the sine of the angle between the families and is
-    kept at least 0.25 (15 degrees).
+    kept at least 0.25 (14.5 degrees).
 
     Returns
     -------
-    across_v, across_h : ndarray (2, H, W) float32
-        ``m_v / (n_v . m_v)`` and ``m_h / (n_h . m_h)``, bilinearly interpolated between the
-        tile centres.
+    across_v, across_h : tuple of two ndarray (H, W) float32
+        The x and y components of ``m_v / (n_v . m_v)`` and of ``m_h / (n_h . m_h)``,
+        bilinearly interpolated between the tile centres.
     """
     h, w = shape
     tv = np.where(theta_v > np.pi / 2, theta_v - np.pi, theta_v)  # n_v towards +x
@@ -214,9 +218,14 @@ def across_operators(theta_v: np.ndarray, theta_h: np.ndarray, shape: tuple[int,
         dot = (m * n_own).sum(0)
         m = np.where(dot < 0, -m, m)
         a = m / np.maximum(np.abs(dot), 0.25)
-        out.append(np.stack([cv2.resize(c.astype(np.float32), (w, h),
-                                        interpolation=cv2.INTER_LINEAR) for c in a]))
+        out.append(tuple(_tiles_to_pixels(c, (h, w)) for c in a))
     return out[0], out[1]
+
+
+def _tiles_to_pixels(values: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Per-tile values (ty, tx) spread over the (H, W) pixels, bilinearly (float32)."""
+    return cv2.resize(np.asarray(values, np.float32), (shape[1], shape[0]),
+                      interpolation=cv2.INTER_LINEAR)
 
 
 def _subpixel(lm: np.ndarray, l0: np.ndarray, lp: np.ndarray) -> np.ndarray:
@@ -256,10 +265,9 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     oblique : bool
         With ``families``, find each family's edges by its own component of the gradient
         (:func:`across_operators`: the derivative along the other family's edges) instead of
-        ``g_x`` and ``g_y``; they differ where the families are not upright. 7.1 MP teapot
-        view: coverage 0.686 -> 0.703, RMS 0.0427 -> 0.0406 px; on the surfaces where the
-        two families meet at less than 60 degrees the crossing bands' tilted edges shift the
-        row and column peaks of ``g_x`` and ``g_y``.
+        ``g_x`` and ``g_y``; they differ where the families are not upright, where the
+        crossing bands' tilted edges shift the row and column peaks of ``g_x`` and ``g_y``
+        (figures: :func:`~nurbscan.detect.detect_grid`'s ``oblique``).
 
     Returns
     -------
@@ -275,10 +283,8 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     b = int(np.ceil(3.0 * max(sigma, sigma_along or 0.0))) + 1
     strong[:b] = strong[-b:] = False
     strong[:, :b] = strong[:, -b:] = False
-    axes = (np.array([1.0, 0.0], np.float32)[:, None, None],
-            np.array([0.0, 1.0], np.float32)[:, None, None])
     dv, dh = gx, gy
-    av, ah = axes
+    av = ah = None  # the image axes
     if families:
         # the gradient's components along the two families' local normals
         tv, th = family_normals(gx, gy, strong)
@@ -290,8 +296,7 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         del gxs, gys
         comp = []
         for t in (tv, th):
-            c2, s2 = (cv2.resize(f(2 * t).astype(np.float32), (w, h),
-                                 interpolation=cv2.INTER_LINEAR)[sy, sx] for f in (np.cos, np.sin))
+            c2, s2 = (_tiles_to_pixels(f(2 * t), (h, w))[sy, sx] for f in (np.cos, np.sin))
             r = np.hypot(c2, s2)
             comp.append(mag2 + (diff2 * c2 + prod2 * s2) / np.where(r > 0, r, 1.0))
         vmask = np.zeros((h, w), bool)
@@ -307,13 +312,15 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         def vratio(iy, ix):
             return np.sqrt(np.maximum(ratio2[iy, ix], 0.0))
 
-        if oblique:
+        if oblique and not (np.all(tv == 0.0) and np.all(th == np.pi / 2)):
             # each family's edges by its own gradient component, the derivative along the
             # other family's edges (the peaks of g_x, g_y move where a tilted crossing band's
             # edge adds to them)
             av, ah = across_operators(tv, th, (h, w))
-            dv = gx * av[0] + gy * av[1]
-            dh = gx * ah[0] + gy * ah[1]
+            dv = gx * av[0]
+            dv += gy * av[1]
+            dh = gx * ah[0]
+            dh += gy * ah[1]
     else:
         vmask = strong & (np.abs(gx) >= dominance * np.abs(gy))
         hmask = strong & (np.abs(gy) > dominance * np.abs(gx))
@@ -321,10 +328,10 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         def vratio(iy, ix):
             return np.abs(gx[iy, ix]) / np.maximum(np.abs(gy[iy, ix]), 1e-10)
 
-    def operator(a, iy, ix):
-        if a.shape[1] == 1:
-            return np.repeat(a[:, 0, 0][None, :], len(iy), axis=0)
-        return a[:, iy, ix].T
+    def operator(a, axis, iy, ix):
+        if a is None:
+            return np.repeat(np.eye(2, dtype=np.float32)[axis][None, :], len(iy), axis=0)
+        return np.stack([a[0][iy, ix], a[1][iy, ix]], axis=1)
 
     ax = np.abs(dv)
     ay = np.abs(dh)
@@ -337,14 +344,14 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     iy, ix = np.nonzero(c)
     d = _subpixel(lx[iy, ix - 1], lx[iy, ix], lx[iy, ix + 1])
     out.append((ix + d, iy.astype(np.float64), ix, iy, np.where(dv[iy, ix] > 0, 0, 1),
-                ax[iy, ix], gx[iy, ix], gy[iy, ix], vratio(iy, ix), operator(av, iy, ix)))
+                ax[iy, ix], gx[iy, ix], gy[iy, ix], vratio(iy, ix), operator(av, 0, iy, ix)))
     c[:] = False
     c[1:-1, :] = (hmask[1:-1, :] & (ay[1:-1, :] > ay[:-2, :]) & (ay[1:-1, :] >= ay[2:, :]))
     iy, ix = np.nonzero(c)
     d = _subpixel(ly[iy - 1, ix], ly[iy, ix], ly[iy + 1, ix])
     out.append((ix.astype(np.float64), iy + d, ix, iy, np.where(dh[iy, ix] > 0, 2, 3),
                 ay[iy, ix], gx[iy, ix], gy[iy, ix], 1.0 / np.maximum(vratio(iy, ix), 1e-10),
-                operator(ah, iy, ix)))
+                operator(ah, 1, iy, ix)))
     cat = [np.concatenate([o[k] for o in out]) for k in range(10)]
     return EdgePoints(x=cat[0].astype(np.float64), y=cat[1].astype(np.float64),
                       ix=cat[2].astype(np.int32), iy=cat[3].astype(np.int32),
@@ -410,8 +417,9 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
         return x, y, np.zeros(0, bool)
     vert = cls < 2
     sgn = np.where(cls % 2 == 0, 1.0, -1.0)
+    axes = np.where(vert[:, None], [1.0, 0.0], [0.0, 1.0])
     if normal is None:
-        normal = np.where(vert[:, None], [1.0, 0.0], [0.0, 1.0])
+        normal = axes
     nx, ny = np.asarray(normal, np.float64).T
     # across-edge derivative samples at offsets -1, 0, +1, and the along-edge derivative
     acc = np.zeros((n, 3))
@@ -424,7 +432,7 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     jy = np.clip(jy, 0, h - 1)
     mag = []
     if across is None:
-        across = np.where(vert[:, None], [1.0, 0.0], [0.0, 1.0])
+        across = axes
     ux, uy = (np.asarray(across, np.float64).T[:, :, None] * sgn[None, :, None])
     for c in range(3):
         gx, gy = gradient(channels[c], sigma, sigma_along)
