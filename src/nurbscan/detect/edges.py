@@ -335,20 +335,22 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
 
     ax = np.abs(dv)
     ay = np.abs(dh)
-    lx = np.log(np.maximum(ax, 1e-6))
-    ly = np.log(np.maximum(ay, 1e-6))
+
+    def ln(a, iy, ix):  # the log-parabola samples, at the peaks only
+        return np.log(np.maximum(a[iy, ix], 1e-6))
+
     out = []
     # vertical class: maximum of the vertical family's derivative along the row
     c = np.zeros((h, w), bool)
     c[:, 1:-1] = (vmask[:, 1:-1] & (ax[:, 1:-1] > ax[:, :-2]) & (ax[:, 1:-1] >= ax[:, 2:]))
     iy, ix = np.nonzero(c)
-    d = _subpixel(lx[iy, ix - 1], lx[iy, ix], lx[iy, ix + 1])
+    d = _subpixel(ln(ax, iy, ix - 1), ln(ax, iy, ix), ln(ax, iy, ix + 1))
     out.append((ix + d, iy.astype(np.float64), ix, iy, np.where(dv[iy, ix] > 0, 0, 1),
                 ax[iy, ix], gx[iy, ix], gy[iy, ix], vratio(iy, ix), operator(av, 0, iy, ix)))
     c[:] = False
     c[1:-1, :] = (hmask[1:-1, :] & (ay[1:-1, :] > ay[:-2, :]) & (ay[1:-1, :] >= ay[2:, :]))
     iy, ix = np.nonzero(c)
-    d = _subpixel(ly[iy - 1, ix], ly[iy, ix], ly[iy + 1, ix])
+    d = _subpixel(ln(ay, iy - 1, ix), ln(ay, iy, ix), ln(ay, iy + 1, ix))
     out.append((ix.astype(np.float64), iy + d, ix, iy, np.where(dh[iy, ix] > 0, 2, 3),
                 ay[iy, ix], gx[iy, ix], gy[iy, ix], 1.0 / np.maximum(vratio(iy, ix), 1e-10),
                 operator(ah, 1, iy, ix)))
