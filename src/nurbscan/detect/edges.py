@@ -31,6 +31,24 @@ crossing (offsets -1, 0, +1):
 Gaussian, whose logarithm is exactly a parabola, so this fit of the zero of the second
 derivative is unbiased for an isolated blurred step edge, at any tilt (the profile along a row
 is then a wider Gaussian).
+
+Near a crossing band the edge is not isolated, and where the two families are not
+perpendicular the fit is taken along a slanted line instead of the row (column),
+:func:`fit_slopes`. There the vertical family's component is ``a = V'(s_v) K(s_h)``, with
+``s_v = n_v . p`` and ``s_h = n_h . p`` (:func:`~nurbscan.detect.normalize.edge_signal`:
+``K`` is the crossing band's shading of the edge, ``sum_c v_c (1 - H h_c)``). The projector's
+defocus blurs ``V`` and ``H`` apart (the pattern is separable in the projector), but the blur
+applied in the camera (lens, pixel, the derivative filter: variance ``s_m^2``) mixes the two
+factors. With ``K`` locally ``exp(k s_h)``, a Gaussian turns ``V'(s_v) exp(k s_h)`` into the
+blurred ``V'`` at ``s_v + s_m^2 k cos(phi)`` times ``exp(k s_h)`` (``cos(phi) = n_v . n_h``;
+the Gaussian shift theorem): along a line of constant ``s_h`` the profile's peak is off the
+edge by ``-s_m^2 k cos(phi)``. Along a line in direction ``e`` the factor ``exp(k s_h)`` adds
+``s_f^2 k (n_h . e) / (n_v . e)``, with ``s_f`` the width of the blurred profile in ``s_v``
+(from the parabola's curvature along the row). The two cancel on the line with
+``(n_h . e) / (n_v . e) = (s_m^2 / s_f^2) cos(phi)``, between the other family's edge
+direction (where only the first shift remains) and the family's own normal (where the second
+overcorrects). On an upright grid (``cos(phi) = 0``, ``n_h`` along y) it is the row
+(figures: :func:`~nurbscan.detect.detect_grid`'s ``fit_line``).
 """
 
 from __future__ import annotations
@@ -102,6 +120,11 @@ class EdgePoints:
         The vector ``A`` whose product with the gradient, ``g . A``, is the point's own
         family's edge derivative (:func:`across_operators`; ``(1, 0)`` or ``(0, 1)``
         without families): the row (column) profile of ``g . A`` peaks at the point.
+    slope : float32, optional
+        The line of the sub-pixel fit through the edge pixel (:func:`fit_slopes`): its offset
+        along y per px along x for vertical-band edges, along x per px along y for horizontal
+        ones (0: the row or column). The point is ``(ix + d, iy + d slope)`` (vertical) or
+        ``(ix + d slope, iy + d)``.
     """
 
     x: np.ndarray
@@ -114,6 +137,7 @@ class EdgePoints:
     gy: np.ndarray
     dominance: np.ndarray | None = None
     across: np.ndarray | None = None
+    slope: np.ndarray | None = None
 
     def take(self, index) -> EdgePoints:
         """The points selected by ``index`` (bool mask or integer indices)."""
@@ -228,17 +252,100 @@ def _tiles_to_pixels(values: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
                       interpolation=cv2.INTER_LINEAR)
 
 
-def _subpixel(lm: np.ndarray, l0: np.ndarray, lp: np.ndarray) -> np.ndarray:
+#: Largest |slope| of a fit line (:func:`fit_slopes`), px per px. The model of the module
+#: notes (``K`` exponential over the samples' reach) holds near the line's centre only, and
+#: the profile's curvature overstates ``1 / s_f^2`` next to a narrow band's other edge; steeper
+#: lines cost accuracy where the bands are narrow (1280 x 960 teapot view, RMS against the
+#: row: 0.0528 -> 0.0570 px with 1.5, 0.0531 px with 0.3; 7.1 MP view 0.0366 and 0.0369 px).
+MAX_SLOPE = 0.3
+
+
+def fit_slopes(n_own: np.ndarray, n_other: np.ndarray, axis: int, curvature: np.ndarray,
+               mix_var: float) -> np.ndarray:
+    """Slope of the line along which each edge point's profile is fitted (module notes).
+
+    The line ``e`` through the edge pixel on which the crossing band's two shifts of the
+    profile's peak cancel: ``(n_other . e) / (n_own . e) = r cos(phi)`` with
+    ``r = mix_var / s_f^2``, ``s_f^2 = -n_own[axis]^2 / curvature`` the variance of the
+    blurred edge profile (across the edge, px^2) and ``cos(phi) = n_own . n_other``.
+
+    Parameters
+    ----------
+    n_own, n_other : ndarray (N, 2)
+        Unit normals (x, y) of the point's family and of the other family (signs free).
+    axis : int
+        The search axis: 0 for vertical-band edges (rows; ``e = (1, slope)``), 1 for
+        horizontal ones (columns; ``e = (slope, 1)``).
+    curvature : ndarray (N,)
+        Second difference of ``ln |derivative|`` along the search axis at the edge pixel
+        (negative at a peak), per px^2.
+    mix_var : float
+        Variance of the blur applied in the camera (derivative filter, lens, pixel), px^2.
+
+    Returns
+    -------
+    ndarray (N,) float64
+        Offset along the other axis per px of the search axis, clipped to +-MAX_SLOPE; 0
+        where the families are upright (then the row or column).
+    """
+    b = 1 - axis
+    own_a, own_b = n_own[:, axis], n_own[:, b]
+    oth_a, oth_b = n_other[:, axis], n_other[:, b]
+    sf2 = own_a * own_a / np.maximum(-np.asarray(curvature, np.float64), 1e-3)
+    rc = np.clip(mix_var / np.maximum(sf2, 1e-6), 0.0, 1.0) * (own_a * oth_a + own_b * oth_b)
+    den = oth_b - rc * own_b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sl = (rc * own_a - oth_a) / den
+    return np.clip(np.nan_to_num(sl, nan=0.0), -MAX_SLOPE, MAX_SLOPE)
+
+
+def _along_line(img: np.ndarray, ix: np.ndarray, iy: np.ndarray, axis: int,
+                slope: np.ndarray, step) -> np.ndarray:
+    """``img`` at ``step`` px along the fit lines through the pixels (float64; (N,), or
+    (N, K) for a (K,) ``step``).
+
+    A step is one px along the search axis (``axis`` 0: x, the rows; 1: y) and ``slope`` px
+    across it; between the pixels across, the image is interpolated by cubic convolution
+    (Keys 1981, a = -0.5: exact for quadratics, where the linear interpolation's error
+    across a tilted edge's profile would shift the fitted peak). The image's border clamps.
+
+    References
+    ----------
+    .. [1] R. Keys, "Cubic convolution interpolation for digital image processing", IEEE
+       Trans. Acoustics, Speech and Signal Processing 29(6), 1153-1160, 1981.
+    """
+    h, w = img.shape
+    step = np.asarray(step, np.float64)
+    if step.ndim:
+        ix, iy, slope = ix[:, None], iy[:, None], slope[:, None]
+    off = slope * step
+    f = np.floor(off)
+    t = off - f
+    weights = ((((-0.5 * t + 1.0) * t - 0.5) * t), ((1.5 * t - 2.5) * t * t + 1.0),
+               (((-1.5 * t + 2.0) * t + 0.5) * t), ((0.5 * t - 0.5) * t * t))
+    f = f.astype(np.int64)
+    run = (ix if axis == 0 else iy) + step.astype(np.int64)
+    out = 0.0
+    for k, wk in zip((-1, 0, 1, 2), weights, strict=True):
+        if axis == 0:
+            out = out + wk * img[np.clip(iy + f + k, 0, h - 1), np.clip(run, 0, w - 1)]
+        else:
+            out = out + wk * img[np.clip(run, 0, h - 1), np.clip(ix + f + k, 0, w - 1)]
+    return out
+
+
+def _subpixel(lm: np.ndarray, l0: np.ndarray, lp: np.ndarray, limit: float = 0.5) -> np.ndarray:
     den = lm - 2.0 * l0 + lp
     with np.errstate(divide="ignore", invalid="ignore"):
         d = 0.5 * (lm - lp) / den
-    return np.clip(np.nan_to_num(d, nan=0.0), -0.5, 0.5)
+    return np.clip(np.nan_to_num(d, nan=0.0), -limit, limit)
 
 
 def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float = 0.06,
                        valid: np.ndarray | None = None, sigma_along: float | None = None,
                        dominance: float = 1.0, families: bool = True,
-                       oblique: bool = True) -> EdgePoints:
+                       oblique: bool = True, fit_line: str = "balanced",
+                       camera_blur: float = 0.5) -> EdgePoints:
     """Find the sub-pixel edge points of ``signal`` (module notes).
 
     Parameters
@@ -268,11 +375,21 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         ``g_x`` and ``g_y``; they differ where the families are not upright, where the
         crossing bands' tilted edges shift the row and column peaks of ``g_x`` and ``g_y``
         (figures: :func:`~nurbscan.detect.detect_grid`'s ``oblique``).
+    fit_line : {"balanced", "row"}
+        With ``oblique``, fit each point's profile along the line on which a crossing band's
+        shifts of the peak cancel (:func:`fit_slopes`, module notes), or along the row
+        (column). Without ``oblique`` (or on an upright grid) it is the row.
+    camera_blur : float
+        The camera lens's blur, Gaussian sigma in camera px: with the derivative filter's
+        ``sigma`` and the pixel (variance 1/12) the blur that mixes the families
+        (:func:`fit_slopes`'s ``mix_var``).
 
     Returns
     -------
     EdgePoints
     """
+    if fit_line not in ("balanced", "row"):
+        raise ValueError(f"fit_line={fit_line!r}: must be 'balanced' or 'row'")
     gx, gy = gradient(signal, sigma, sigma_along)
     m = cv2.magnitude(gx, gy)
     h, w = m.shape
@@ -336,37 +453,56 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     ax = np.abs(dv)
     ay = np.abs(dh)
 
-    def ln(a, iy, ix):  # the log-parabola samples, at the peaks only
-        return np.log(np.maximum(a[iy, ix], 1e-6))
+    def ln(a):  # the log-parabola samples, at the peaks only
+        return np.log(np.maximum(a, 1e-6))
 
+    balanced = fit_line == "balanced" and av is not None
+    mix_var = sigma * sigma + camera_blur * camera_blur + 1.0 / 12.0
     out = []
-    # vertical class: maximum of the vertical family's derivative along the row
-    c = np.zeros((h, w), bool)
-    c[:, 1:-1] = (vmask[:, 1:-1] & (ax[:, 1:-1] > ax[:, :-2]) & (ax[:, 1:-1] >= ax[:, 2:]))
-    iy, ix = np.nonzero(c)
-    d = _subpixel(ln(ax, iy, ix - 1), ln(ax, iy, ix), ln(ax, iy, ix + 1))
-    out.append((ix + d, iy.astype(np.float64), ix, iy, np.where(dv[iy, ix] > 0, 0, 1),
-                ax[iy, ix], gx[iy, ix], gy[iy, ix], vratio(iy, ix), operator(av, 0, iy, ix)))
-    c[:] = False
-    c[1:-1, :] = (hmask[1:-1, :] & (ay[1:-1, :] > ay[:-2, :]) & (ay[1:-1, :] >= ay[2:, :]))
-    iy, ix = np.nonzero(c)
-    d = _subpixel(ln(ay, iy - 1, ix), ln(ay, iy, ix), ln(ay, iy + 1, ix))
-    out.append((ix.astype(np.float64), iy + d, ix, iy, np.where(dh[iy, ix] > 0, 2, 3),
-                ay[iy, ix], gx[iy, ix], gy[iy, ix], 1.0 / np.maximum(vratio(iy, ix), 1e-10),
-                operator(ah, 1, iy, ix)))
-    cat = [np.concatenate([o[k] for o in out]) for k in range(10)]
+    for axis, mask, amp, der, a_own, a_other, cls0 in ((0, vmask, ax, dv, av, ah, 0),
+                                                        (1, hmask, ay, dh, ah, av, 2)):
+        # maxima of the family's derivative along the row (vertical) or column (horizontal)
+        c = np.zeros((h, w), bool)
+        if axis == 0:
+            c[:, 1:-1] = (mask[:, 1:-1] & (amp[:, 1:-1] > amp[:, :-2])
+                          & (amp[:, 1:-1] >= amp[:, 2:]))
+        else:
+            c[1:-1, :] = (mask[1:-1, :] & (amp[1:-1, :] > amp[:-2, :])
+                          & (amp[1:-1, :] >= amp[2:, :]))
+        iy, ix = np.nonzero(c)
+        del c
+        zero = np.zeros(len(iy))
+        lm, l0, lp = (ln(_along_line(amp, ix, iy, axis, zero, k)) for k in (-1, 0, 1))
+        sl, limit = zero, 0.5
+        if balanced:
+            # the operators A are parallel to the other family's edges: normals from them
+            n_own = np.stack([-a_other[1][iy, ix], a_other[0][iy, ix]], 1).astype(np.float64)
+            n_oth = np.stack([-a_own[1][iy, ix], a_own[0][iy, ix]], 1).astype(np.float64)
+            n_own /= np.linalg.norm(n_own, axis=1, keepdims=True)
+            n_oth /= np.linalg.norm(n_oth, axis=1, keepdims=True)
+            sl = fit_slopes(n_own, n_oth, axis, lm - 2.0 * l0 + lp, mix_var)
+            lm, lp = (ln(_along_line(amp, ix, iy, axis, sl, k)) for k in (-1, 1))
+            # a slanted line can cross the edge up to ~1 px from the pixel
+            limit = np.where(sl != 0, 1.0, 0.5)
+        d = _subpixel(lm, l0, lp, limit)
+        x, y = (ix + d, iy + d * sl) if axis == 0 else (ix + d * sl, iy + d)
+        ratio = vratio(iy, ix) if axis == 0 else 1.0 / np.maximum(vratio(iy, ix), 1e-10)
+        out.append((x, y, ix, iy, np.where(der[iy, ix] > 0, cls0, cls0 + 1), amp[iy, ix],
+                    gx[iy, ix], gy[iy, ix], ratio, operator(a_own, axis, iy, ix), sl))
+    cat = [np.concatenate([o[k] for o in out]) for k in range(11)]
     return EdgePoints(x=cat[0].astype(np.float64), y=cat[1].astype(np.float64),
                       ix=cat[2].astype(np.int32), iy=cat[3].astype(np.int32),
                       cls=cat[4].astype(np.int8), strength=cat[5].astype(np.float32),
                       gx=cat[6].astype(np.float32), gy=cat[7].astype(np.float32),
                       dominance=cat[8].astype(np.float32),
-                      across=cat[9].astype(np.float32))
+                      across=cat[9].astype(np.float32), slope=cat[10].astype(np.float32))
 
 
 def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray,
                        colour: np.ndarray, x: np.ndarray, y: np.ndarray, sigma: float,
                        sigma_along: float | None = None, clean: float = 0.25,
-                       normal: np.ndarray | None = None, across: np.ndarray | None = None
+                       normal: np.ndarray | None = None, across: np.ndarray | None = None,
+                       slope: np.ndarray | None = None
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Second, per-channel sub-pixel pass for decoded edge points (method.md section 2).
 
@@ -404,6 +540,9 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
         The edge derivative is ``g . across`` (:attr:`EdgePoints.across`, the derivative along
         the other family's edges); default ``g_x`` for vertical-band edges and ``g_y``
         otherwise.
+    slope : (N,) float, optional
+        The line of each point's fit (:attr:`EdgePoints.slope`, :func:`fit_slopes`); default
+        the row (column).
 
     Returns
     -------
@@ -426,19 +565,23 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     # across-edge derivative samples at offsets -1, 0, +1, and the along-edge derivative
     acc = np.zeros((n, 3))
     used = np.zeros(n, np.int64)
-    dx = np.array([-1, 0, 1])
-    h, w = channels[0].shape
-    jx = np.where(vert[:, None], ix[:, None] + dx[None, :], ix[:, None])
-    jy = np.where(vert[:, None], iy[:, None], iy[:, None] + dx[None, :])
-    jx = np.clip(jx, 0, w - 1)
-    jy = np.clip(jy, 0, h - 1)
+    steps = np.array([-1.0, 0.0, 1.0])
+    sl = np.zeros(n) if slope is None else np.asarray(slope, np.float64)
+    ix, iy = np.asarray(ix, np.int64), np.asarray(iy, np.int64)
     mag = []
     if across is None:
         across = axes
     ux, uy = (np.asarray(across, np.float64).T[:, :, None] * sgn[None, :, None])
+
+    def on_line(img):  # (N, 3): the samples along each point's fit line
+        out = np.empty((n, 3))
+        for axis, sel in ((0, vert), (1, ~vert)):
+            out[sel] = _along_line(img, ix[sel], iy[sel], axis, sl[sel], steps)
+        return out
+
     for c in range(3):
         gx, gy = gradient(channels[c], sigma, sigma_along)
-        prof = gx[jy, jx] * ux + gy[jy, jx] * uy
+        prof = on_line(gx) * ux + on_line(gy) * uy
         cx, cy = gx[iy, ix], gy[iy, ix]
         along = nx * cy - ny * cx
         normal_d = nx * cx + ny * cy
@@ -451,7 +594,7 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     peak = (used > 0) & (acc[:, 1] > 0.3 * big) & (acc[:, 1] >= acc[:, 0]) \
         & (acc[:, 1] >= acc[:, 2]) & (acc.min(1) > 0)
     la = np.log(np.maximum(acc, 1e-9))
-    d = _subpixel(la[:, 0], la[:, 1], la[:, 2])
-    x = np.where(peak & vert, ix + d, x)
-    y = np.where(peak & ~vert, iy + d, y)
+    d = _subpixel(la[:, 0], la[:, 1], la[:, 2], np.where(sl != 0, 1.0, 0.5))
+    x = np.where(peak, np.where(vert, ix + d, ix + d * sl), x)
+    y = np.where(peak, np.where(vert, iy + d * sl, iy + d), y)
     return x, y, peak
