@@ -206,7 +206,8 @@ def row_support(x: np.ndarray, y: np.ndarray, direction: np.ndarray, coord: np.n
     Parameters
     ----------
     x, y : (M,) float
-        Points, camera px (vertical-edge points on pixel rows, horizontal ones on columns).
+        Points, camera px (vertical-edge points on or, with a slanted fit line, within
+        0.3 px of pixel rows, rounded to them; horizontal ones on columns).
     direction : (M,) int
         0 vertical-band edge, 1 horizontal-band edge.
     coord : (M,) float
@@ -867,16 +868,15 @@ def extend_lines(x, y, strength, line, direction, edge, extra, shape, min_streng
 
     Each extra point (``extra``, :class:`~nurbscan.detect.edges.EdgePoints`) of at least
     ``min_strength`` joins the line :func:`attach_points` finds for it (the lines' edge
-    pixels are taken as their points' rounded positions across the edge) and is kept when
+    pixels are taken as their points' rounded positions) and is kept when
     it lies within ``tol`` camera px of the straight line through the line's own points
     among the ``reach`` chain positions on either side of it (one side at a chain's end;
     :func:`~nurbscan.detect.lines.neighbour_fit`). Points are re-ordered along each line
     (y for vertical-band edges, ``direction`` 0). ``x``, ``y``, ``strength``, ``line`` (N,);
     ``direction``, ``edge`` (L,) per line. Returns the four arrays extended.
     """
-    vk = direction[line] == 0
-    cx = np.where(vk, np.round(x), x).astype(np.int64)
-    cy = np.where(vk, y, np.round(y)).astype(np.int64)
+    # (a point off its pixel's row along the edge, EdgePoints.slope, rounds back to it)
+    cx, cy = np.round(x).astype(np.int64), np.round(y).astype(np.int64)
     att = attach_points(line, 2 * direction[line] + edge[line], cx, cy, extra, shape)
     a = np.nonzero((att >= 0) & (extra.strength >= min_strength))[0]
     if not len(a):
@@ -1331,17 +1331,17 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         pass and re-measurement): "balanced", the line on which a crossing band's two shifts
         of the profile's peak cancel (:func:`~nurbscan.detect.edges.fit_slopes`, module notes
         of :mod:`~nurbscan.detect.edges`), or the pixel row (column). 7.1 MP teapot view 0,
-        row -> balanced: at 1x noise coverage 0.7009 -> 0.7200 (within 2 px of a crossing
-        band 0.588 -> 0.621), RMS 0.0398 -> 0.0369 px, intersections 0.138 -> 0.147 px; at 0x
-        0.7390 -> 0.7513, 0.0294 -> 0.0259 px; at 3x 0.6040 -> 0.6254, 0.0646 -> 0.0622 px;
-        demo scan views 0-7: coverage 0.7347 -> 0.7520, RMS 0.0396 -> 0.0362 px, no wrong
-        line; 1280 x 960 teapot: 0.5590 -> 0.5702, 0.0528 -> 0.0531 px; calibration
+        row -> balanced: at 1x noise coverage 0.7009 -> 0.7240 (within 2 px of a crossing
+        band 0.588 -> 0.639), RMS 0.0398 -> 0.0371 px, intersections 0.138 -> 0.147 px; at 0x
+        0.7390 -> 0.7555, 0.0294 -> 0.0260 px; at 3x 0.6040 -> 0.6291, 0.0646 -> 0.0623 px;
+        demo scan views 0-7: coverage 0.7347 -> 0.7565, RMS 0.0396 -> 0.0365 px, no wrong
+        line; 1280 x 960 teapot: 0.5590 -> 0.5780, 0.0528 -> 0.0532 px; calibration
         benchmark, held-out pose 0.0149 -> 0.0143 mm; demo reconstruction: Gordon mean
         0.01200 -> 0.01209 mm, coverage 90.05 -> 90.00 %.
     camera_blur : float
         The camera lens's blur, Gaussian sigma in camera px, used by the balanced fit line
         (part of the blur that mixes the two families; the simulator's default 0.5). 7.1 MP
-        view at 1x noise, 0 -> 1 px: coverage 0.7195 -> 0.7235, RMS 0.0370 -> 0.0374 px.
+        view at 1x noise, 0 -> 1 px: coverage 0.7235 -> 0.7277, RMS 0.0372 -> 0.0377 px.
     smooth_reach : int
         Half-width (camera px along the edge) of the local weighted line that smooths each
         final chain (:func:`~nurbscan.detect.lines.smooth_chains`); 0 keeps the points as

@@ -58,6 +58,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..errors import NurbscanError
+
 #: Edge classes: (direction, edge) -> class id.
 CLASSES = {("v", 0): 0, ("v", 1): 1, ("h", 0): 2, ("h", 1): 3}
 
@@ -286,7 +288,14 @@ def fit_slopes(n_own: np.ndarray, n_other: np.ndarray, axis: int, curvature: np.
     -------
     ndarray (N,) float64
         Offset along the other axis per px of the search axis, clipped to +-MAX_SLOPE; 0
-        where the families are upright (then the row or column).
+        (to rounding) where the families are upright: then the row or column.
+
+    Notes
+    -----
+    ``r`` is clipped to [0, 1] (the camera's blur is part of the profile's) and
+    ``-curvature`` floored at 1e-3 (a flat profile: ``r`` near 0, the other family's edge
+    direction). The model takes the camera's blur as isotropic: with a ``sigma_along``
+    other than ``sigma`` in :func:`detect_edge_points` ``mix_var`` is only approximate.
     """
     b = 1 - axis
     own_a, own_b = n_own[:, axis], n_own[:, b]
@@ -301,13 +310,28 @@ def fit_slopes(n_own: np.ndarray, n_other: np.ndarray, axis: int, curvature: np.
 
 def _along_line(img: np.ndarray, ix: np.ndarray, iy: np.ndarray, axis: int,
                 slope: np.ndarray, step) -> np.ndarray:
-    """``img`` at ``step`` px along the fit lines through the pixels (float64; (N,), or
-    (N, K) for a (K,) ``step``).
+    """``img`` at ``step`` px along the fit lines through the pixels.
 
-    A step is one px along the search axis (``axis`` 0: x, the rows; 1: y) and ``slope`` px
-    across it; between the pixels across, the image is interpolated by cubic convolution
-    (Keys 1981, a = -0.5: exact for quadratics, where the linear interpolation's error
-    across a tilted edge's profile would shift the fitted peak). The image's border clamps.
+    A step is one px along the search axis and ``slope`` px across it; between the pixels
+    across, the image is interpolated by cubic convolution (Keys 1981, a = -0.5: exact for
+    quadratics, where the linear interpolation's error across a tilted edge's profile would
+    shift the fitted peak). The image's border clamps.
+
+    Parameters
+    ----------
+    img : ndarray (H, W)
+    ix, iy : ndarray (N,) int
+        The edge pixels.
+    axis : int
+        The search axis: 0 x (rows), 1 y (columns).
+    slope : ndarray (N,)
+        Offset across the search axis per step, px (:func:`fit_slopes`).
+    step : int or ndarray (K,) of integers
+        Steps along the search axis (whole px).
+
+    Returns
+    -------
+    ndarray (N,) or (N, K) float64
 
     References
     ----------
@@ -334,7 +358,10 @@ def _along_line(img: np.ndarray, ix: np.ndarray, iy: np.ndarray, axis: int,
     return out
 
 
-def _subpixel(lm: np.ndarray, l0: np.ndarray, lp: np.ndarray, limit: float = 0.5) -> np.ndarray:
+def _subpixel(lm: np.ndarray, l0: np.ndarray, lp: np.ndarray,
+              limit: float | np.ndarray = 0.5) -> np.ndarray:
+    """Vertex of the parabola through ``(-1, lm), (0, l0), (1, lp)`` (N,), clipped to
+    +-``limit``; 0 where the three samples are collinear."""
     den = lm - 2.0 * l0 + lp
     with np.errstate(divide="ignore", invalid="ignore"):
         d = 0.5 * (lm - lp) / den
@@ -382,14 +409,22 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     camera_blur : float
         The camera lens's blur, Gaussian sigma in camera px: with the derivative filter's
         ``sigma`` and the pixel (variance 1/12) the blur that mixes the families
-        (:func:`fit_slopes`'s ``mix_var``).
+        (:func:`fit_slopes`'s ``mix_var``, which takes ``sigma_along`` as ``sigma``).
 
     Returns
     -------
     EdgePoints
+        With the balanced line a point lies up to ``MAX_SLOPE`` px off its pixel's row
+        (column) along the fit line (:attr:`EdgePoints.slope`); row and column groupings
+        use the edge pixels ``ix``, ``iy``.
+
+    Raises
+    ------
+    NurbscanError
+        For an unknown ``fit_line``.
     """
     if fit_line not in ("balanced", "row"):
-        raise ValueError(f"fit_line={fit_line!r}: must be 'balanced' or 'row'")
+        raise NurbscanError(f"fit_line={fit_line!r}: must be 'balanced' or 'row'")
     gx, gy = gradient(signal, sigma, sigma_along)
     m = cv2.magnitude(gx, gy)
     h, w = m.shape
@@ -471,9 +506,9 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
                           & (amp[1:-1, :] >= amp[2:, :]))
         iy, ix = np.nonzero(c)
         del c
-        zero = np.zeros(len(iy))
-        lm, l0, lp = (ln(_along_line(amp, ix, iy, axis, zero, k)) for k in (-1, 0, 1))
-        sl, limit = zero, 0.5
+        step = (0, 1) if axis == 0 else (1, 0)  # (dy, dx) of one step along the search axis
+        lm, l0, lp = (ln(amp[iy + k * step[0], ix + k * step[1]]) for k in (-1, 0, 1))
+        sl, limit = np.zeros(len(iy)), 0.5
         if balanced:
             # the operators A are parallel to the other family's edges: normals from them
             n_own = np.stack([-a_other[1][iy, ix], a_other[0][iy, ix]], 1).astype(np.float64)
@@ -482,8 +517,9 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
             n_oth /= np.linalg.norm(n_oth, axis=1, keepdims=True)
             sl = fit_slopes(n_own, n_oth, axis, lm - 2.0 * l0 + lp, mix_var)
             lm, lp = (ln(_along_line(amp, ix, iy, axis, sl, k)) for k in (-1, 1))
-            # a slanted line can cross the edge up to ~1 px from the pixel
-            limit = np.where(sl != 0, 1.0, 0.5)
+            # a slanted line can cross the edge farther than 0.5 px from the pixel (up to ~1
+            # px); the bound grows with the slope from the row's 0.5
+            limit = np.minimum(1.0, 0.5 + 2.0 * np.abs(sl))
         d = _subpixel(lm, l0, lp, limit)
         x, y = (ix + d, iy + d * sl) if axis == 0 else (ix + d * sl, iy + d)
         ratio = vratio(iy, ix) if axis == 0 else 1.0 / np.maximum(vratio(iy, ix), 1e-10)
@@ -594,7 +630,7 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     peak = (used > 0) & (acc[:, 1] > 0.3 * big) & (acc[:, 1] >= acc[:, 0]) \
         & (acc[:, 1] >= acc[:, 2]) & (acc.min(1) > 0)
     la = np.log(np.maximum(acc, 1e-9))
-    d = _subpixel(la[:, 0], la[:, 1], la[:, 2], np.where(sl != 0, 1.0, 0.5))
+    d = _subpixel(la[:, 0], la[:, 1], la[:, 2])  # |d| <= 0.5: the centre sample is the peak
     x = np.where(peak, np.where(vert, ix + d, ix + d * sl), x)
     y = np.where(peak, np.where(vert, iy + d * sl, iy + d), y)
     return x, y, peak
