@@ -308,54 +308,65 @@ def fit_slopes(n_own: np.ndarray, n_other: np.ndarray, axis: int, curvature: np.
     return np.clip(np.nan_to_num(sl, nan=0.0), -MAX_SLOPE, MAX_SLOPE)
 
 
-def _along_line(img: np.ndarray, ix: np.ndarray, iy: np.ndarray, axis: int,
-                slope: np.ndarray, step) -> np.ndarray:
-    """``img`` at ``step`` px along the fit lines through the pixels.
+def line_taps(ix: np.ndarray, iy: np.ndarray, axis, slope: np.ndarray, step,
+              shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels and weights that sample images ``step`` px along the fit lines through pixels.
 
     A step is one px along the search axis and ``slope`` px across it; between the pixels
     across, the image is interpolated by cubic convolution (Keys 1981, a = -0.5: exact for
     quadratics, where the linear interpolation's error across a tilted edge's profile would
-    shift the fitted peak). The image's border clamps.
+    shift the fitted peak). The image's border clamps. ``(img.ravel()[idx] * wts).sum(-1)``
+    is the sample (:func:`_along_line`); the taps serve every image of that shape.
 
     Parameters
     ----------
-    img : ndarray (H, W)
     ix, iy : ndarray (N,) int
         The edge pixels.
-    axis : int
-        The search axis: 0 x (rows), 1 y (columns).
+    axis : int or ndarray (N,) int
+        The search axis of each point: 0 x (rows), 1 y (columns).
     slope : ndarray (N,)
         Offset across the search axis per step, px (:func:`fit_slopes`).
-    step : int or ndarray (K,) of integers
+    step : ndarray (K,) of integers
         Steps along the search axis (whole px).
+    shape : (int, int)
+        The images' (H, W).
 
     Returns
     -------
-    ndarray (N,) or (N, K) float64
+    idx : ndarray (N, K, 4) int64
+        Flat pixel indices of the four taps of each sample.
+    wts : ndarray (N, K, 4) float64
+        Their weights (summing to 1).
 
     References
     ----------
     .. [1] R. Keys, "Cubic convolution interpolation for digital image processing", IEEE
        Trans. Acoustics, Speech and Signal Processing 29(6), 1153-1160, 1981.
     """
-    h, w = img.shape
-    step = np.asarray(step, np.float64)
-    if step.ndim:
-        ix, iy, slope = ix[:, None], iy[:, None], slope[:, None]
-    off = slope * step
+    h, w = shape
+    step = np.asarray(step, np.float64)[None, :, None]
+    along_x = (np.broadcast_to(np.asarray(axis), np.shape(ix)) == 0)[:, None, None]
+    off = np.asarray(slope, np.float64)[:, None, None] * step
     f = np.floor(off)
     t = off - f
-    weights = ((((-0.5 * t + 1.0) * t - 0.5) * t), ((1.5 * t - 2.5) * t * t + 1.0),
-               (((-1.5 * t + 2.0) * t + 0.5) * t), ((0.5 * t - 0.5) * t * t))
-    f = f.astype(np.int64)
-    run = (ix if axis == 0 else iy) + step.astype(np.int64)
-    out = 0.0
-    for k, wk in zip((-1, 0, 1, 2), weights, strict=True):
-        if axis == 0:
-            out = out + wk * img[np.clip(iy + f + k, 0, h - 1), np.clip(run, 0, w - 1)]
-        else:
-            out = out + wk * img[np.clip(run, 0, h - 1), np.clip(ix + f + k, 0, w - 1)]
-    return out
+    wts = np.concatenate([((-0.5 * t + 1.0) * t - 0.5) * t, (1.5 * t - 2.5) * t * t + 1.0,
+                          ((-1.5 * t + 2.0) * t + 0.5) * t, (0.5 * t - 0.5) * t * t], axis=2)
+    across = f.astype(np.int64) + np.arange(-1, 3)[None, None, :]  # (N, K, 4)
+    run = step.astype(np.int64)
+    ix, iy = np.asarray(ix, np.int64)[:, None, None], np.asarray(iy, np.int64)[:, None, None]
+    yy = np.clip(iy + np.where(along_x, across, run), 0, h - 1)
+    xx = np.clip(ix + np.where(along_x, run, across), 0, w - 1)
+    return yy * w + xx, wts
+
+
+def _along_line(img: np.ndarray, ix: np.ndarray, iy: np.ndarray, axis: int,
+                slope: np.ndarray, step) -> np.ndarray:
+    """``img`` (H, W) at ``step`` px along the fit lines through the pixels (:func:`line_taps`;
+    a scalar ``step``: (N,), else (N, K)), float64."""
+    scalar = np.ndim(step) == 0
+    idx, wts = line_taps(ix, iy, axis, slope, np.atleast_1d(step), img.shape)
+    out = (img.ravel()[idx] * wts).sum(axis=2)
+    return out[:, 0] if scalar else out
 
 
 def _subpixel(lm: np.ndarray, l0: np.ndarray, lp: np.ndarray,
@@ -609,11 +620,11 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
         across = axes
     ux, uy = (np.asarray(across, np.float64).T[:, :, None] * sgn[None, :, None])
 
-    def on_line(img):  # (N, 3): the samples along each point's fit line
-        out = np.empty((n, 3))
-        for axis, sel in ((0, vert), (1, ~vert)):
-            out[sel] = _along_line(img, ix[sel], iy[sel], axis, sl[sel], steps)
-        return out
+    # (N, 3): the samples along each point's fit line, from taps shared by all the images
+    idx, wts = line_taps(ix, iy, np.where(vert, 0, 1), sl, steps, channels[0].shape)
+
+    def on_line(img):
+        return (img.ravel()[idx] * wts).sum(axis=2)
 
     for c in range(3):
         gx, gy = gradient(channels[c], sigma, sigma_along)
