@@ -9,7 +9,9 @@ returns a dict with
 * ``peak_mb``: peak resident memory of that process (``ru_maxrss``; the images themselves
   included);
 * per noise level (``noise0``, ``noise1``, ``noise3``): the figures of
-  :func:`nurbscan.detect.evaluate_detection` against the view's truth.
+  :func:`nurbscan.detect.evaluate_detection` against the view's truth;
+* ``noise1_jpeg95``: the same for the 1x images saved as JPEG at quality 95 (OpenCV's
+  default 4:2:0 chroma subsampling, as cameras write), read back (a real-world file format).
 
 Run ``python benchmarks/bench_detect.py`` (prints JSON).
 """
@@ -86,16 +88,29 @@ def _timed_child(path: str) -> dict:
     return {"seconds": t1 - t0, "seconds_warm": t2 - t1, "peak_mb": peak}
 
 
-def figures(path: Path) -> dict[str, float]:
-    """Detection figures of one cached view against its truth."""
+def _jpeg(image: np.ndarray, quality: int) -> np.ndarray:
+    """An RGB uint8 image through a JPEG file's encoding at ``quality`` and back."""
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(image[..., ::-1]),
+                           [cv2.IMWRITE_JPEG_QUALITY, quality])
+    return cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1]
+
+
+def figures(path: Path, jpeg: int | None = None) -> dict[str, float]:
+    """Detection figures of one cached view against its truth (the images through a JPEG
+    encoding at quality ``jpeg`` first, if given)."""
     from nurbscan.detect import detect_grid, evaluate_detection
 
     z = np.load(path)
     truth = {k: z[k] for k in ("proj_x", "proj_y", "lit", "surface_id")}
     pattern = _pattern()
+    grid, white = z["grid"], z["white"]
+    if jpeg is not None:
+        grid, white = _jpeg(grid, jpeg), _jpeg(white, jpeg)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        r = detect_grid(z["grid"], pattern, z["white"])
+        r = detect_grid(grid, pattern, white)
     ev = evaluate_detection(r, truth, pattern)
     ev["lines"] = float(r.nlines)
     return ev
@@ -113,6 +128,8 @@ def bench(noises=(0.0, 1.0, 3.0)) -> dict:
     out.update(json.loads(child.stdout.strip().splitlines()[-1]))
     for n in noises:
         out[f"noise{n:g}"] = {k: round(v, 4) for k, v in figures(paths[n]).items()}
+    if 1.0 in paths:
+        out["noise1_jpeg95"] = {k: round(v, 4) for k, v in figures(paths[1.0], 95).items()}
     return out
 
 
