@@ -622,37 +622,6 @@ def test_corner_points_extend_the_teapot_lines(teapot, teapot_result, teapot_no_
     assert len(b.x) > len(a.x)
 
 
-def _jpeg(image: np.ndarray, quality: int = 95) -> np.ndarray:
-    """An RGB uint8 image through OpenCV's JPEG encoding (4:2:0 chroma) and back."""
-    import cv2
-
-    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(image[..., ::-1]),
-                           [cv2.IMWRITE_JPEG_QUALITY, quality])
-    assert ok
-    return cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1]
-
-
-def test_chroma_subsampled_jpeg_is_not_refined_per_channel(teapot, teapot_result):
-    """A JPEG with 4:2:0 chroma (quality 95) has half the colour resolution: chroma_detail
-    tells it from the rendered image (measured 0.12 against 0.33), and detect_grid then skips
-    the per-channel re-measurement, whose blurred channels displace the edges, and says so
-    (1280 x 960 teapot view: RMS 0.0839 -> 0.0715 px, coverage 0.526 -> 0.500)."""
-    from nurbscan.detect.normalize import CHROMA_SUBSAMPLED, chroma_detail
-
-    v, pat = teapot
-    g, w = _jpeg(v.grid), _jpeg(v.white)
-    assert chroma_detail(v.grid) > CHROMA_SUBSAMPLED + 0.1 > chroma_detail(g) + 0.14
-    assert np.isnan(chroma_detail(v.grid[..., 0])) and not teapot_result.warnings
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        auto = detect_grid(g, pat, w)
-        forced = detect_grid(g, pat, w, refine=True)
-    assert len(auto.warnings) == 1 and "chroma" in auto.warnings[0] and not forced.warnings
-    ea, ef = (evaluate_detection(r, v.truth, pat) for r in (auto, forced))
-    assert ea["rms_px"] < 0.9 * ef["rms_px"], (ea, ef)
-    assert ea["label_rate"] >= 0.995 and ea["wrong_lines_over_20px"] == 0, ea
-
-
 def test_extend_lines_attaches_next_to_points_off_their_row():
     """A vertical line whose points lie 0.2 px above their rows (a slanted fit line,
     EdgePoints.slope) is extended by the corner point next to its last pixel: the lines'

@@ -68,8 +68,6 @@ def run(args: argparse.Namespace) -> int:
         raise NurbscanError(f"{args.image}: " + (result.warnings[0] if result.warnings
                                                   else "no grid line decoded"))
     result.save(args.output)
-    for note in result.warnings:
-        print(f"{args.image}: {note}", file=sys.stderr)
     if args.overlay:
         write_image(args.overlay, draw_overlay(image, result, pattern))
     nv = int((result.direction == 0).sum())

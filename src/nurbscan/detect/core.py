@@ -34,7 +34,7 @@ from .lines import (
     smooth_chains,
     trace_lines,
 )
-from .normalize import CHROMA_SUBSAMPLED, chroma_detail, noise_level, normalize
+from .normalize import noise_level, normalize
 from .result import DetectionResult
 
 
@@ -1062,7 +1062,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                 min_agreement: float = 0.9, min_consensus: float = 0.85,
                 crossing_margin: float = 0.0, max_residual: float = 0.3,
                 window: int = 31, propagation_rounds: int = 1,
-                join_gap: float | None = None, refine: bool | None = None,
+                join_gap: float | None = None, refine: bool = True,
                 refit_residual: float = 0.2, end_residual: float = 0.15,
                 unrefined: str = "keep", new_end_residual: float = 0.5,
                 corner_dominance: float = 0.3, corner_residual: float = 0.1,
@@ -1135,16 +1135,9 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         Largest gap (px) across which collinear chains of one class are taken as pieces of one
         edge (:func:`~nurbscan.detect.lines.join_collinear`); default 1.5 band widths +
         4 sigma, 0 disables.
-    refine : bool, optional
+    refine : bool
         Re-measure the decoded points in their band's clean colour channels
-        (:func:`~nurbscan.detect.edges.refine_by_channels`). By default, unless the
-        photograph's colour is coarser than its brightness
-        (:func:`~nurbscan.detect.normalize.chroma_detail` below ``CHROMA_SUBSAMPLED``: a JPEG
-        with chroma subsampling, where the channels' edges are blurred and displaced); then
-        the result's ``warnings`` say so. 7.1 MP teapot view at 1x noise through JPEG at
-        quality 95: 4:2:0 RMS 0.104 -> 0.080 px, wrong lines over 20 px 1 -> 0, coverage
-        0.668 -> 0.668; 4:2:2 0.078 -> 0.068 px (4:4:4 keeps it: 0.0497 px, against 0.058
-        without).
+        (:func:`~nurbscan.detect.edges.refine_by_channels`).
     refit_residual : float
         After refinement, drop points farther than this (px) from the straight line through
         their chain neighbours; 0 keeps them.
@@ -1381,14 +1374,6 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                             "corner_keep >= 0 and 0 < corner_dominance <= 1")
     if fit_line not in ("balanced", "row"):
         raise NurbscanError(f"fit_line={fit_line!r}: must be 'balanced' or 'row'")
-    notes: list[str] = []
-    if refine is None:
-        detail = chroma_detail(image)
-        refine = not detail < CHROMA_SUBSAMPLED  # (NaN for a grey image: refine)
-        if not refine:
-            notes.append(f"image: colour resolution below the brightness's (chroma detail "
-                         f"{detail:.2f}; a JPEG with chroma subsampling?): edges not "
-                         "re-measured per colour channel")
     if unrefined not in ("keep", "fit", "drop"):
         raise NurbscanError(f"unrefined={unrefined!r}: must be 'keep', 'fit' or 'drop'")
     lin = as_float_planes(image, gamma=gamma)
@@ -1776,4 +1761,4 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         image_size=(w, h), x=px, y=py, strength=strength.astype(np.float32), line=line,
         direction=ldir, band=lab, edge=ledge, coord=coord, start=start, stop=stop,
         votes=votes_k, agreement=agree_k, cam=cam, proj=proj, cross_band=cb,
-        cross_edge=ce, cross_line=cl, warnings=tuple(notes))
+        cross_edge=ce, cross_line=cl, warnings=())

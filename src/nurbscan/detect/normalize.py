@@ -173,49 +173,6 @@ def edge_signal(norm: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(norm[..., 0] + norm[..., 1] + norm[..., 2], dtype=np.float32)
 
 
-#: Below this :func:`chroma_detail` a photograph's colour is taken to be subsampled.
-CHROMA_SUBSAMPLED = 0.18
-
-
-def chroma_detail(image: np.ndarray, row_step: int = 16) -> float:
-    """Fine detail of an RGB photograph's colour relative to its brightness (0 to ~1).
-
-    Every ``row_step``-th row is taken to Y'CbCr (ITU-R BT.601, as JPEG codes it) and the
-    mean magnitude of the second difference along the row of Cb and Cr is divided by that of
-    Y', over the 5 % of those pixels where Y''s is largest (the band edges); the smaller of
-    the two ratios is returned. A grid photograph stored at full colour resolution (PNG,
-    TIFF, JPEG 4:4:4) has colour edges as sharp as its brightness edges: 0.33 on the 7.1 MP
-    teapot view (0.35 and 0.33 at 0 and 3x noise, 0.30 as JPEG 4:4:4 at quality 95). A JPEG
-    with chroma subsampling (4:2:2 or 4:2:0, what most cameras write) halves the colour
-    resolution along the rows: 0.06 to 0.10 (4:2:0 at quality 98 to 70, 4:2:2 at 95).
-
-    Parameters
-    ----------
-    image : ndarray (H, W, 3), uint8, uint16 or float in [0, 1]
-        The photograph as stored (gamma-encoded).
-    row_step : int
-        Rows sampled.
-
-    Returns
-    -------
-    float
-        NaN for an image without edges or not RGB.
-    """
-    img = np.asarray(image)
-    if img.ndim != 3 or img.shape[2] != 3 or img.shape[1] < 3:
-        return float("nan")
-    scale = 255.0 if img.dtype == np.uint8 else 65535.0 if img.dtype == np.uint16 else 1.0
-    rgb = img[::max(int(row_step), 1)].astype(np.float32) / np.float32(scale)
-    y = 0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]
-    d2 = [np.abs(c[:, :-2] - 2 * c[:, 1:-1] + c[:, 2:])
-          for c in (y, 0.564 * (rgb[..., 2] - y), 0.713 * (rgb[..., 0] - y))]
-    edge = d2[0] >= np.percentile(d2[0], 95)
-    ref = float(np.mean(d2[0][edge])) if edge.any() else 0.0  # (none: NaN values)
-    if not ref > 0:
-        return float("nan")
-    return min(float(np.mean(d2[1][edge])), float(np.mean(d2[2][edge]))) / ref
-
-
 def noise_level(signal: np.ndarray, valid: np.ndarray | None = None, step: int = 3) -> float:
     """Standard deviation of the white noise in ``signal`` (H, W), robust to its edges.
 
