@@ -329,6 +329,39 @@ def test_cli_writes_lines_and_overlay(tmp_path, pattern, view):
     assert np.mean(img.max(axis=2) > 150) > 0.01
 
 
+def test_cli_does_not_refine_a_chroma_subsampled_jpeg(tmp_path, pattern, view, capsys):
+    """``nurbscan detect`` on a JPEG with 4:2:0 colour says so and decodes it without the
+    per-channel re-measurement (refine=False: the same lines as the API call); the same
+    image as JPEG 4:4:4 keeps it."""
+    import cv2
+
+    g, w, _ = view
+    pattern.save(tmp_path / "pattern.png")
+    out = {}
+    for name, factor in (("420", cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420),
+                         ("444", cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444)):
+        paths = []
+        for kind, img in (("grid", g), ("white", w)):
+            path = tmp_path / f"{kind}_{name}.jpg"
+            assert cv2.imwrite(str(path), to8(img)[..., ::-1],
+                               [cv2.IMWRITE_JPEG_QUALITY, 95, cv2.IMWRITE_JPEG_SAMPLING_FACTOR,
+                                factor])
+            paths.append(path)
+        out[name] = tmp_path / f"lines_{name}.json"
+        capsys.readouterr()
+        assert main(["detect", str(paths[0]), "--pattern", str(tmp_path / "pattern.json"),
+                     "--white", str(paths[1]), "-o", str(out[name])]) == 0
+        err = capsys.readouterr().err
+        assert ("subsampled colour" in err) == (name == "420"), err
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            api = detect_grid(read_image(paths[0], as_float=False), pattern,
+                              read_image(paths[1], as_float=False), refine=name == "444")
+        got = load_detection(out[name])
+        assert np.array_equal(got.band, api.band) and len(got.x) == len(api.x)
+        np.testing.assert_allclose(got.x, api.x, atol=1e-4)
+
+
 def test_cli_errors(tmp_path, pattern, capsys):
     pattern.save(tmp_path / "pattern.png")
     write_image(tmp_path / "black.png", np.zeros((64, 80, 3), np.uint8))

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from nurbscan.errors import NurbscanError
-from nurbscan.io import atomic_path, read_image, write_image, write_json
+from nurbscan.io import atomic_path, chroma_subsampled, read_image, write_image, write_json
 from nurbscan.io.atomic import read_json
 
 
@@ -44,6 +44,33 @@ def test_grey_and_jpeg(tmp_path):
     np.testing.assert_array_equal(img[..., 1], grey)
     jpg = write_image(tmp_path / "a.jpg", np.full((16, 16, 3), 128, np.uint8))
     assert abs(read_image(jpg)[8, 8, 0] - 128 / 255) < 2 / 255
+
+
+def test_chroma_subsampling_is_read_from_the_jpeg_frame_header(tmp_path):
+    """JPEG 4:2:0, 4:2:2 and 4:1:1 (baseline or progressive) store colour below the luma
+    resolution; 4:4:4, grey JPEG, PNG and TIFF do not; a truncated file is not subsampled
+    and a missing one is an error."""
+    img = np.random.default_rng(0).integers(0, 256, (24, 40, 3), dtype=np.uint8)
+    cases = {"420": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420,
+             "422": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422,
+             "411": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_411,
+             "444": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444}
+    for name, factor in cases.items():
+        path = tmp_path / f"{name}.jpg"
+        assert cv2.imwrite(str(path), img, [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, factor])
+        assert chroma_subsampled(path) == (name != "444"), name
+    prog = tmp_path / "progressive.jpg"
+    assert cv2.imwrite(str(prog), img, [cv2.IMWRITE_JPEG_PROGRESSIVE, 1])  # 4:2:0 default
+    assert chroma_subsampled(prog)
+    assert cv2.imwrite(str(tmp_path / "grey.jpg"), img[..., 0])
+    assert not chroma_subsampled(tmp_path / "grey.jpg")
+    for ext in (".png", ".tif"):
+        assert cv2.imwrite(str(tmp_path / f"a{ext}"), img)
+        assert not chroma_subsampled(tmp_path / f"a{ext}")
+    (tmp_path / "cut.jpg").write_bytes((tmp_path / "420.jpg").read_bytes()[:40])
+    assert not chroma_subsampled(tmp_path / "cut.jpg")
+    with pytest.raises(NurbscanError, match="nope.jpg"):
+        chroma_subsampled(tmp_path / "nope.jpg")
 
 
 def test_missing_and_corrupt_files_raise_one_line(tmp_path):

@@ -35,7 +35,7 @@ import numpy as np
 
 from .._parallel import process_map
 from ..errors import NurbscanError
-from ..io import read_image
+from ..io import chroma_subsampled, read_image
 from ..io.atomic import read_json
 from ._bundle import (
     BundleState,
@@ -256,8 +256,9 @@ def _read_pose(job) -> tuple[tuple[int, int], np.ndarray | None, Any]:
         return (white.shape[1], white.shape[0]), None, None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
+        # a chroma-subsampled JPEG's colour channels have displaced edges: no re-measurement
         det = detect_grid(read_image(gpath, as_float=False), pattern, white=white,
-                          **DETECT_OPTIONS)
+                          **DETECT_OPTIONS, refine=not chroma_subsampled(gpath))
     return (white.shape[1], white.shape[0]), c, det
 
 

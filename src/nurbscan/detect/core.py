@@ -1137,7 +1137,14 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         4 sigma, 0 disables.
     refine : bool
         Re-measure the decoded points in their band's clean colour channels
-        (:func:`~nurbscan.detect.edges.refine_by_channels`).
+        (:func:`~nurbscan.detect.edges.refine_by_channels`). Not for a JPEG with subsampled
+        colour (4:2:2, 4:2:0: :func:`nurbscan.io.chroma_subsampled`), whose channels' edges
+        are blurred and displaced; the readers of files (``nurbscan detect``, ``reconstruct``,
+        ``calibrate``) pass False for such files. 7.1 MP teapot view at 1x noise through JPEG
+        at quality 95, True -> False: 4:2:0 RMS 0.104 -> 0.080 px, wrong lines over 20 px 1
+        -> 0, coverage 0.668 -> 0.668; 4:2:2 0.078 -> 0.068 px, coverage 0.692 -> 0.673; JPEG
+        4:4:4 keeps it (0.0497 px, against 0.058 px without). False also drops the unpaired
+        points that only the re-measurement keeps (``keep_unpaired``) and its filters.
     refit_residual : float
         After refinement, drop points farther than this (px) from the straight line through
         their chain neighbours; 0 keeps them.

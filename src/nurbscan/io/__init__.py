@@ -1,10 +1,11 @@
 """File formats and safe writing: images, JSON, atomic output."""
 
 from .atomic import atomic_path, read_json, write_bytes, write_json, write_text
-from .images import read_image, write_image
+from .images import chroma_subsampled, read_image, write_image
 
 __all__ = [
     "atomic_path",
+    "chroma_subsampled",
     "read_image",
     "read_json",
     "write_bytes",

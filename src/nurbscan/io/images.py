@@ -72,3 +72,61 @@ def write_image(path: str | os.PathLike, image: np.ndarray) -> Path:
         if not cv2.imwrite(str(tmp), image):
             raise NurbscanError(f"{path}: could not write image")
     return path
+
+
+#: JPEG start-of-frame markers (baseline, extended, progressive, lossless; Huffman and
+#: arithmetic coding), which carry the components' sampling factors (ITU-T T.81, B.2.2).
+_SOF_MARKERS = frozenset((0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD,
+                          0xCE, 0xCF))
+
+
+def chroma_subsampled(path: str | os.PathLike) -> bool:
+    """Whether an image file stores its colour at a lower resolution than its brightness.
+
+    True for a JPEG whose frame header (ITU-T T.81, B.2.2) gives its colour components
+    smaller sampling factors than its first (luma) component: 4:2:2 and 4:2:0, what most
+    cameras write; False for JPEG 4:4:4, grey JPEG and any other format (PNG, TIFF). Such a
+    file's colour channels have blurred, displaced edges (:func:`nurbscan.detect.detect_grid`'s
+    ``refine``).
+
+    Parameters
+    ----------
+    path : path-like
+
+    Returns
+    -------
+    bool
+    """
+    try:
+        with open(path, "rb") as f:
+            data = f.read(1 << 20)  # the frame header comes before the image data
+    except OSError as exc:
+        raise NurbscanError(f"{path}: cannot read ({exc.strerror})") from None
+    if data[:2] != b"\xff\xd8":
+        return False
+    i = 2
+    while i + 4 <= len(data):
+        if data[i] != 0xFF:
+            return False  # not a marker: corrupt header (decoding will report it)
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:  # no length field
+            i += 2
+            continue
+        length = int.from_bytes(data[i + 2:i + 4], "big")
+        if marker in _SOF_MARKERS:
+            seg = data[i + 4:i + 2 + length]
+            if len(seg) < 6:
+                return False
+            n = seg[5]
+            comps = [seg[6 + 3 * k + 1] for k in range(n) if 6 + 3 * k + 1 < len(seg)]
+            if n < 3 or len(comps) < 3:
+                return False
+            luma = (comps[0] >> 4, comps[0] & 15)
+            return any((c >> 4, c & 15) != luma for c in comps[1:3])
+        if marker == 0xDA:  # start of scan before any frame header
+            return False
+        i += 2 + length
+    return False

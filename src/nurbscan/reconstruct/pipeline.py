@@ -19,7 +19,7 @@ import numpy as np
 
 from .._parallel import process_map
 from ..errors import NurbscanError
-from ..io import read_image
+from ..io import chroma_subsampled, read_image
 from ..io.atomic import read_json
 from .light import compare_light_surfaces, other_coordinate
 from .merge import curve_to_object, rig_to_object, surface_to_object
@@ -175,7 +175,9 @@ def _view_job(job: dict):
     grid = read_image(job["grid"], as_float=False)
     white = read_image(job["white"], as_float=False) if job["white"] is not None else None
     t1 = time.perf_counter()
-    det = detect_grid(grid, job["pattern"], white, **detect_options(job["rig"]))
+    # a chroma-subsampled JPEG's colour channels have displaced edges: no re-measurement
+    det = detect_grid(grid, job["pattern"], white, **detect_options(job["rig"]),
+                      refine=not chroma_subsampled(job["grid"]))
     t2 = time.perf_counter()
     res = reconstruct_view(det, job["rig"], job["pattern"], **job["kwargs"])
     t3 = time.perf_counter()
