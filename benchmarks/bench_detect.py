@@ -11,7 +11,8 @@ returns a dict with
 * per noise level (``noise0``, ``noise1``, ``noise3``): the figures of
   :func:`nurbscan.detect.evaluate_detection` against the view's truth;
 * ``noise1_jpeg95``: the same for the 1x images saved as JPEG at quality 95 (OpenCV's
-  default 4:2:0 chroma subsampling, as cameras write), read back (a real-world file format).
+  default 4:2:0 chroma subsampling, as cameras write) and read back as ``nurbscan detect``
+  reads them (no per-channel re-measurement for such files, :func:`nurbscan.io.chroma_subsampled`).
 
 Run ``python benchmarks/bench_detect.py`` (prints JSON).
 """
@@ -88,29 +89,30 @@ def _timed_child(path: str) -> dict:
     return {"seconds": t1 - t0, "seconds_warm": t2 - t1, "peak_mb": peak}
 
 
-def _jpeg(image: np.ndarray, quality: int) -> np.ndarray:
-    """An RGB uint8 image through a JPEG file's encoding at ``quality`` and back."""
+def figures(path: Path, jpeg: int | None = None) -> dict[str, float]:
+    """Detection figures of one cached view against its truth (the images through JPEG
+    files at quality ``jpeg`` first, if given, read as ``nurbscan detect`` reads them)."""
     import cv2
 
-    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(image[..., ::-1]),
-                           [cv2.IMWRITE_JPEG_QUALITY, quality])
-    return cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1]
-
-
-def figures(path: Path, jpeg: int | None = None) -> dict[str, float]:
-    """Detection figures of one cached view against its truth (the images through a JPEG
-    encoding at quality ``jpeg`` first, if given)."""
     from nurbscan.detect import detect_grid, evaluate_detection
+    from nurbscan.io import chroma_subsampled, read_image
 
     z = np.load(path)
     truth = {k: z[k] for k in ("proj_x", "proj_y", "lit", "surface_id")}
     pattern = _pattern()
     grid, white = z["grid"], z["white"]
+    refine = True
     if jpeg is not None:
-        grid, white = _jpeg(grid, jpeg), _jpeg(white, jpeg)
+        with tempfile.TemporaryDirectory() as tmp:
+            files = [Path(tmp) / f"{k}.jpg" for k in ("grid", "white")]
+            for f, img in zip(files, (grid, white), strict=True):
+                cv2.imwrite(str(f), np.ascontiguousarray(img[..., ::-1]),
+                            [cv2.IMWRITE_JPEG_QUALITY, jpeg])
+            grid, white = (read_image(f, as_float=False) for f in files)
+            refine = not chroma_subsampled(files[0])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        r = detect_grid(grid, pattern, white)
+        r = detect_grid(grid, pattern, white, refine=refine)
     ev = evaluate_detection(r, truth, pattern)
     ev["lines"] = float(r.nlines)
     return ev
