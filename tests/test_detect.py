@@ -1231,6 +1231,25 @@ def test_fit_slopes_lie_between_the_other_edges_and_the_own_normal():
     assert fit_slopes(unit(-40), unit(60), 0, curv, 0.0)[0] == -MAX_SLOPE
 
 
+def test_line_taps_mix_search_axes_and_clamp_at_the_border():
+    """line_taps with a per-point search axis gives the per-axis samples of _along_line,
+    also where the taps run past the image's border (clamped)."""
+    from nurbscan.detect.edges import _along_line, line_taps
+
+    img = np.random.default_rng(2).random((30, 40)).astype(np.float32)
+    ix, iy = np.array([1, 20, 38, 5, 20, 39]), np.array([0, 15, 29, 1, 28, 10])
+    axis = np.array([0, 0, 0, 1, 1, 1])
+    sl = np.array([0.3, -0.2, 0.25, -0.3, 0.1, 0.0])
+    steps = np.array([-1.0, 0.0, 1.0])
+    idx, wts = line_taps(ix, iy, axis, sl, steps, img.shape)
+    got = (img.ravel()[idx] * wts).sum(axis=2)
+    for a in (0, 1):
+        k = axis == a
+        np.testing.assert_array_equal(got[k], _along_line(img, ix[k], iy[k], a, sl[k], steps))
+    np.testing.assert_allclose(wts.sum(axis=2), 1.0, atol=1e-12)
+    assert idx.min() >= 0 and idx.max() < img.size
+
+
 def test_samples_along_a_slanted_line_are_exact_for_quadratics():
     """The fit line's samples (cubic convolution across the search axis) reproduce a
     quadratic image exactly, for both search axes and fractional offsets."""
