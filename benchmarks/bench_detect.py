@@ -12,7 +12,7 @@ returns a dict with
   :func:`nurbscan.detect.evaluate_detection` against the view's truth;
 * ``noise1_jpeg95``: the same for the 1x images saved as JPEG at quality 95 (OpenCV's
   default 4:2:0 chroma subsampling, as cameras write) and read back as ``nurbscan detect``
-  reads them (no per-channel re-measurement for such files, :func:`nurbscan.io.chroma_subsampled`).
+  reads them (``detect_grid``'s ``chroma_subsampled``, from :func:`nurbscan.io.chroma_subsampled`).
 
 Run ``python benchmarks/bench_detect.py`` (prints JSON).
 """
@@ -101,7 +101,7 @@ def figures(path: Path, jpeg: int | None = None) -> dict[str, float]:
     truth = {k: z[k] for k in ("proj_x", "proj_y", "lit", "surface_id")}
     pattern = _pattern()
     grid, white = z["grid"], z["white"]
-    refine = True
+    subsampled = False
     if jpeg is not None:
         with tempfile.TemporaryDirectory() as tmp:
             files = [Path(tmp) / f"{k}.jpg" for k in ("grid", "white")]
@@ -109,10 +109,10 @@ def figures(path: Path, jpeg: int | None = None) -> dict[str, float]:
                 cv2.imwrite(str(f), np.ascontiguousarray(img[..., ::-1]),
                             [cv2.IMWRITE_JPEG_QUALITY, jpeg])
             grid, white = (read_image(f, as_float=False) for f in files)
-            refine = not chroma_subsampled(files[0])
+            subsampled = chroma_subsampled(files[0])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        r = detect_grid(grid, pattern, white, refine=refine)
+        r = detect_grid(grid, pattern, white, chroma_subsampled=subsampled)
     ev = evaluate_detection(r, truth, pattern)
     ev["lines"] = float(r.nlines)
     return ev

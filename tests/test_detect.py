@@ -329,10 +329,10 @@ def test_cli_writes_lines_and_overlay(tmp_path, pattern, view):
     assert np.mean(img.max(axis=2) > 150) > 0.01
 
 
-def test_cli_does_not_refine_a_chroma_subsampled_jpeg(tmp_path, pattern, view, capsys):
-    """``nurbscan detect`` on a JPEG with 4:2:0 colour says so and decodes it without the
-    per-channel re-measurement (refine=False: the same lines as the API call); the same
-    image as JPEG 4:4:4 keeps it."""
+def test_cli_reads_a_chroma_subsampled_jpeg_as_such(tmp_path, pattern, view, capsys):
+    """``nurbscan detect`` on a JPEG with 4:2:0 colour says so and decodes it as such
+    (``chroma_subsampled=True``: the same lines as the API call); the same image as JPEG
+    4:4:4 is decoded as a full-colour image."""
     import cv2
 
     g, w, _ = view
@@ -356,7 +356,8 @@ def test_cli_does_not_refine_a_chroma_subsampled_jpeg(tmp_path, pattern, view, c
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             api = detect_grid(read_image(paths[0], as_float=False), pattern,
-                              read_image(paths[1], as_float=False), refine=name == "444")
+                              read_image(paths[1], as_float=False),
+                              chroma_subsampled=name == "420")
         got = load_detection(out[name])
         assert np.array_equal(got.band, api.band) and len(got.x) == len(api.x)
         np.testing.assert_allclose(got.x, api.x, atol=1e-4)
@@ -653,6 +654,49 @@ def test_corner_points_extend_the_teapot_lines(teapot, teapot_result, teapot_no_
     a, b = teapot_no_corners, teapot_result
     assert np.array_equal(a.band, b.band) and np.array_equal(a.cam, b.cam)
     assert len(b.x) > len(a.x)
+
+
+def test_chroma_subsampled_jpeg_is_measured_in_its_luma(teapot):
+    """The 1280 x 960 teapot view through JPEG 4:2:0 (quality 95): decoded as such (luma
+    weights, no per-channel re-measurement) its points are closer to the truth than when
+    read as a full-colour image (measured: RMS 0.0839 -> 0.0645 px, coverage 0.526 -> 0.471),
+    with right labels."""
+    import cv2
+
+    v, pat = teapot
+
+    def jpeg(image):
+        ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(image[..., ::-1]),
+                               [cv2.IMWRITE_JPEG_QUALITY, 95])
+        return cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1]
+
+    g, w = jpeg(v.grid), jpeg(v.white)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        plain, as_such = (evaluate_detection(detect_grid(g, pat, w, chroma_subsampled=c),
+                                             v.truth, pat) for c in (False, True))
+    assert as_such["rms_px"] < 0.85 * plain["rms_px"], (plain, as_such)
+    assert as_such["label_rate"] >= 0.995 and as_such["wrong_lines_over_20px"] == 0, as_such
+    assert as_such["coverage"] > 0.42, as_such
+
+
+def test_normalize_channel_weights(view):
+    """normalize's weights scale the channels of the edge signal (equal weights: the plain
+    sum, any scale); bad weights are an error."""
+    from nurbscan.detect import normalize
+    from nurbscan.detect.core import as_float_planes
+
+    g, w, _ = view
+    planes, white = as_float_planes(g), as_float_planes(w)
+    plain = normalize(planes, white).signal
+    np.testing.assert_allclose(normalize(planes, white, weights=(2, 2, 2)).signal, plain,
+                               rtol=1e-5, atol=1e-6)
+    red = normalize(planes, white, weights=(1, 0, 0))
+    np.testing.assert_allclose(red.signal, 3 * red.channels[0] * red.inverse[0],
+                               rtol=1e-5, atol=1e-6)
+    for bad in ((1, 1), (-1, 1, 1), (0, 0, 0)):
+        with pytest.raises(NurbscanError, match="weights"):
+            normalize(planes, white, weights=bad)
 
 
 def test_extend_lines_attaches_next_to_points_off_their_row():

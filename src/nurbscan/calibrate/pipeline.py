@@ -256,9 +256,9 @@ def _read_pose(job) -> tuple[tuple[int, int], np.ndarray | None, Any]:
         return (white.shape[1], white.shape[0]), None, None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        # a chroma-subsampled JPEG's colour channels have displaced edges: no re-measurement
+        # a chroma-subsampled JPEG's colour channels have displaced edges (detect_grid)
         det = detect_grid(read_image(gpath, as_float=False), pattern, white=white,
-                          **DETECT_OPTIONS, refine=not chroma_subsampled(gpath))
+                          **DETECT_OPTIONS, chroma_subsampled=chroma_subsampled(gpath))
     return (white.shape[1], white.shape[0]), c, det
 
 

@@ -60,15 +60,15 @@ def run(args: argparse.Namespace) -> int:
     if white is not None and white.shape != image.shape:
         raise NurbscanError(f"{args.white}: size {white.shape[1]}x{white.shape[0]} does not "
                             f"match {args.image} ({image.shape[1]}x{image.shape[0]})")
-    refine = not chroma_subsampled(args.image)
-    if not refine:
-        print(f"{args.image}: JPEG with subsampled colour (4:2:2 / 4:2:0): the edges are not "
-              "re-measured in the colour channels (PNG, TIFF or JPEG 4:4:4 give more "
-              "accurate edges)", file=sys.stderr)
+    subsampled = chroma_subsampled(args.image)
+    if subsampled:
+        print(f"{args.image}: JPEG with subsampled colour (4:2:2 / 4:2:0): edges measured in "
+              "its luma, not re-measured in the colour channels (PNG, TIFF or JPEG 4:4:4 give "
+              "more accurate edges)", file=sys.stderr)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result = detect_grid(image, pattern, white, gamma=args.gamma, sigma=args.sigma,
-                             epipolar=epipolar, refine=refine)
+                             epipolar=epipolar, chroma_subsampled=subsampled)
     if result.nlines == 0:
         raise NurbscanError(f"{args.image}: " + (result.warnings[0] if result.warnings
                                                   else "no grid line decoded"))

@@ -107,8 +107,12 @@ def _planes(image, what: str) -> tuple:
     return tuple(cv2.split(img))
 
 
+#: ITU-R BT.601 luma weights of R, G, B, as JPEG's Y'CbCr defines them.
+LUMA_601 = (0.299, 0.587, 0.114)
+
+
 def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 31,
-              floor: float = 0.03) -> Normalised:
+              floor: float = 0.03, weights=None) -> Normalised:
     """Normalise a (linear) grid image for albedo, shading and illumination.
 
     Parameters
@@ -122,6 +126,11 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
         no white image), camera px (about two band pitches).
     floor : float
         Smallest denominator (fraction of full scale): darker pixels count as unlit.
+    weights : sequence of 3 float, optional
+        Weights of the normalised channels in the edge signal (scaled to sum to 3; default
+        equal, :func:`edge_signal`). Any positive weights keep its crossing-band property;
+        for a JPEG with subsampled colour the luma weights (``LUMA_601``) leave out most of
+        the blurred colour.
 
     Returns
     -------
@@ -154,9 +163,13 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
         valid = den > floor
         inv = (1.0 / np.maximum(den, floor),)
     inv3 = inv if len(inv) == 3 else inv * 3
-    signal = chans[0] * inv3[0]
-    signal += chans[1] * inv3[1]
-    signal += chans[2] * inv3[2]
+    wts = np.ones(3) if weights is None else np.asarray(weights, np.float64)
+    if wts.shape != (3,) or not np.all(wts >= 0) or not wts.sum() > 0:
+        raise NurbscanError(f"weights={weights!r}: need three non-negative channel weights")
+    wts = (3.0 * wts / wts.sum()).astype(np.float32)
+    signal = chans[0] * (inv3[0] * wts[0])
+    signal += chans[1] * (inv3[1] * wts[1])
+    signal += chans[2] * (inv3[2] * wts[2])
     return Normalised(signal=signal.astype(np.float32, copy=False), valid=valid,
                       channels=chans, inverse=inv)
 

@@ -175,9 +175,9 @@ def _view_job(job: dict):
     grid = read_image(job["grid"], as_float=False)
     white = read_image(job["white"], as_float=False) if job["white"] is not None else None
     t1 = time.perf_counter()
-    # a chroma-subsampled JPEG's colour channels have displaced edges: no re-measurement
+    # a chroma-subsampled JPEG's colour channels have displaced edges (detect_grid)
     det = detect_grid(grid, job["pattern"], white, **detect_options(job["rig"]),
-                      refine=not chroma_subsampled(job["grid"]))
+                      chroma_subsampled=chroma_subsampled(job["grid"]))
     t2 = time.perf_counter()
     res = reconstruct_view(det, job["rig"], job["pattern"], **job["kwargs"])
     t3 = time.perf_counter()
