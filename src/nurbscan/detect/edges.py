@@ -361,12 +361,10 @@ def line_taps(ix: np.ndarray, iy: np.ndarray, axis, slope: np.ndarray, step,
 
 def _along_line(img: np.ndarray, ix: np.ndarray, iy: np.ndarray, axis: int,
                 slope: np.ndarray, step) -> np.ndarray:
-    """``img`` (H, W) at ``step`` px along the fit lines through the pixels (:func:`line_taps`;
-    a scalar ``step``: (N,), else (N, K)), float64."""
-    scalar = np.ndim(step) == 0
-    idx, wts = line_taps(ix, iy, axis, slope, np.atleast_1d(step), img.shape)
-    out = (img.ravel()[idx] * wts).sum(axis=2)
-    return out[:, 0] if scalar else out
+    """``img`` (H, W) at the (K,) ``step`` px along the fit lines through the pixels
+    (:func:`line_taps`), float64 (N, K)."""
+    idx, wts = line_taps(ix, iy, axis, slope, step, img.shape)
+    return (img.ravel()[idx] * wts).sum(axis=2)
 
 
 def _subpixel(lm: np.ndarray, l0: np.ndarray, lp: np.ndarray,
@@ -527,7 +525,7 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
             n_own /= np.linalg.norm(n_own, axis=1, keepdims=True)
             n_oth /= np.linalg.norm(n_oth, axis=1, keepdims=True)
             sl = fit_slopes(n_own, n_oth, axis, lm - 2.0 * l0 + lp, mix_var)
-            lm, lp = (ln(_along_line(amp, ix, iy, axis, sl, k)) for k in (-1, 1))
+            lm, lp = ln(_along_line(amp, ix, iy, axis, sl, (-1, 1))).T
             # a slanted line can cross the edge farther than 0.5 px from the pixel (up to ~1
             # px); the bound grows with the slope from the row's 0.5
             limit = np.minimum(1.0, 0.5 + 2.0 * np.abs(sl))

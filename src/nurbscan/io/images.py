@@ -87,7 +87,8 @@ def chroma_subsampled(path: str | os.PathLike) -> bool:
     smaller sampling factors than its first (luma) component: 4:2:2 and 4:2:0, what most
     cameras write; False for JPEG 4:4:4, grey JPEG and any other format (PNG, TIFF). Such a
     file's colour channels have blurred, displaced edges (:func:`nurbscan.detect.detect_grid`'s
-    ``refine``).
+    ``chroma_subsampled``). Only a JPEG's header is read (up to 1 MB); of other files, two
+    bytes.
 
     Parameters
     ----------
@@ -99,11 +100,11 @@ def chroma_subsampled(path: str | os.PathLike) -> bool:
     """
     try:
         with open(path, "rb") as f:
-            data = f.read(1 << 20)  # the frame header comes before the image data
+            if f.read(2) != b"\xff\xd8":  # not a JPEG
+                return False
+            data = b"\xff\xd8" + f.read(1 << 20)  # the frame header precedes the image data
     except OSError as exc:
         raise NurbscanError(f"{path}: cannot read ({exc.strerror})") from None
-    if data[:2] != b"\xff\xd8":
-        return False
     i = 2
     while i + 4 <= len(data):
         if data[i] != 0xFF:
