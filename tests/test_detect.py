@@ -1443,3 +1443,28 @@ def test_channel_refinement_of_a_tilted_edge():
     e = (rx - 50.3) * np.cos(a) + (ry - 60.0) * np.sin(a)
     e = np.where(cls == 0, e, e - 10.0)
     assert np.sqrt(np.mean(e[done] ** 2)) < 0.01
+
+
+def test_grid_intersections_exact_and_kinked():
+    """Two straight edges meet at their exact intersection; a family whose points near the
+    crossing are two offset pieces (two surfaces at an occluding contour) gives none."""
+    from nurbscan.detect import grid_intersections
+
+    t = np.r_[np.arange(0.0, 46.0), np.arange(55.0, 101.0)]  # gap at the crossing band
+    xv, yv = 50.0 + 0.1 * (t - 50.0), t  # vertical edge x = 50 + 0.1 (y - 50)
+    xh, yh = t, 50.0 + 0.05 * (t - 50.0)  # horizontal edge y = 50 + 0.05 (x - 50)
+    line = np.r_[np.zeros(t.size, int), np.ones(t.size, int)]
+    args = (line, np.array([0, 1]), np.array([3, 7]), np.array([0, 1]), np.array([100.0, 200.0]))
+    cam, proj, bands, edges, lines = grid_intersections(np.r_[xv, xh], np.r_[yv, yh], *args,
+                                                        radius=8.0)
+    assert len(cam) == 1
+    assert np.abs(cam[0] - [50.0, 50.0]).max() < 1e-9  # both lines pass through (50, 50)
+    assert np.array_equal(proj[0], [100.0, 200.0]) and np.array_equal(bands[0], [3, 7])
+    assert np.array_equal(edges[0], [0, 1]) and np.array_equal(lines[0], [0, 1])
+    # the vertical edge's upper piece 5 px to the side: the straight fit through the k = 8
+    # nearest points (of both pieces) leaves residuals over 0.5 px RMS
+    xk = np.where(yv < 50, xv + 5.0, xv)
+    assert len(grid_intersections(np.r_[xk, xh], np.r_[yv, yh], *args, radius=8.0)[0]) == 0
+    kept = grid_intersections(np.r_[xk, xh], np.r_[yv, yh], *args, radius=8.0,
+                              max_fit_rms=np.inf)[0]
+    assert len(kept) == 1 and 50.5 < kept[0, 0] < 54.5  # between the two pieces: wrong

@@ -79,7 +79,8 @@ def as_float_planes(image, what: str = "image", gamma: float = 1.0) -> tuple:
     return tuple(cv2.split(as_float_image(image, what, gamma)))
 
 
-def grid_intersections(x, y, line, direction, band, edge, coord, radius: float, k: int = 8):
+def grid_intersections(x, y, line, direction, band, edge, coord, radius: float, k: int = 8,
+                       max_fit_rms: float = 0.5):
     """Crossings of labelled vertical and horizontal edges (method.md section 5, step 4).
 
     A vertical edge (band i, edge e) and a horizontal edge (band j, edge f) cross once in the
@@ -90,7 +91,10 @@ def grid_intersections(x, y, line, direction, band, edge, coord, radius: float, 
     family's ``k`` nearest points (of any of its segments) are fitted by a straight line,
     x = a + b (y - y0) for the vertical edge and y = c + d (x - x0) for the horizontal one, and
     the two lines are intersected. Pairs whose fitted points do not reach within ``radius`` of
-    the intersection are dropped.
+    the intersection are dropped, and so are those where either fit's RMS residual exceeds
+    ``max_fit_rms`` px: the k points are then not one straight edge (pieces of two surfaces
+    at an occluding contour). 7.1 MP teapot view 0: intersection RMS 0.140 -> 0.123 px at 0
+    noise (4 of 3843 dropped, one of them 3.4 px off), 0.147 -> 0.142 px at 1x noise.
 
     Returns
     -------
@@ -130,15 +134,19 @@ def grid_intersections(x, y, line, direction, band, edge, coord, radius: float, 
         dd = dd.reshape(len(cx), kk)
         ii = sel[np.minimum(ii.reshape(len(cx), kk), len(sel) - 1)]
         wts = (np.isfinite(dd) & (dd < 4 * radius)).astype(np.float64)
-        fit = np.c_[fit_lines(along[ii] - centre[:, None], across[ii], wts)[:2]]
-        out.append((fit, centre, dd, wts, ii))
-    (fv, y0, dv, wv, iv), (fh, x0, dh, wh, ih) = out
+        t_ = along[ii] - centre[:, None]
+        fit = np.c_[fit_lines(t_, across[ii], wts)[:2]]
+        with np.errstate(all="ignore"):
+            r2 = (wts * (across[ii] - fit[:, :1] - fit[:, 1:] * t_) ** 2).sum(1) / wts.sum(1)
+        out.append((fit, centre, np.sqrt(r2), wts, ii))
+    (fv, y0, rv, wv, iv), (fh, x0, rh, wh, ih) = out
     # x = fv0 + fv1 (y - y0); y = fh0 + fh1 (x - x0)
     with np.errstate(all="ignore"):
         px = (fv[:, 0] + fv[:, 1] * (fh[:, 0] - fh[:, 1] * x0 - y0)) / (1 - fv[:, 1] * fh[:, 1])
         py = fh[:, 0] + fh[:, 1] * (px - x0)
     ok = np.isfinite(px) & np.isfinite(py) & (wv.sum(1) >= 4) & (wh.sum(1) >= 4)
     ok &= np.hypot(px - cx, py - cy) < radius
+    ok &= np.fmax(rv, rh) <= max_fit_rms
     lv, lh = line[a], line[b]
     cam = np.c_[px, py][ok]
     proj = np.c_[coord[lv], coord[lh]][ok]
