@@ -79,8 +79,11 @@ def as_float_planes(image, what: str = "image", gamma: float = 1.0) -> tuple:
     return tuple(cv2.split(as_float_image(image, what, gamma)))
 
 
+INTERSECTION_FIT_RMS = 0.5  # px, grid_intersections' max_fit_rms
+
+
 def grid_intersections(x, y, line, direction, band, edge, coord, radius: float, k: int = 8,
-                       max_fit_rms: float = 0.5):
+                       max_fit_rms: float = INTERSECTION_FIT_RMS):
     """Crossings of labelled vertical and horizontal edges (method.md section 5, step 4).
 
     A vertical edge (band i, edge e) and a horizontal edge (band j, edge f) cross once in the
@@ -95,16 +98,25 @@ def grid_intersections(x, y, line, direction, band, edge, coord, radius: float, 
     ``max_fit_rms`` px: the k points are then not one straight edge (pieces of two surfaces
     at an occluding contour). 7.1 MP teapot view 0: intersection RMS 0.140 -> 0.123 px at 0
     noise (4 of 3843 dropped, one of them 3.4 px off), 0.147 -> 0.142 px at 1x noise.
+    :func:`detect_grid` checks its lines with all crossings and keeps these in its result.
 
     Returns
     -------
     cam : (K, 2) camera px; proj : (K, 2) projector px; bands, edges, lines : (K, 2) int
         (vertical, horizontal) band index, edge, and a line id of each family near the point.
     """
+    *out, fit_rms = _intersections(x, y, line, direction, band, edge, coord, radius, k)
+    keep = fit_rms <= max_fit_rms
+    return tuple(a[keep] for a in out)
+
+
+def _intersections(x, y, line, direction, band, edge, coord, radius: float, k: int):
+    """:func:`grid_intersections` before its residual test; also returns the larger of the
+    two fits' RMS residuals of each crossing, (K,) px."""
     from scipy.spatial import cKDTree
 
     empty = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 2), np.int64),
-             np.zeros((0, 2), np.int64), np.zeros((0, 2), np.int64))
+             np.zeros((0, 2), np.int64), np.zeros((0, 2), np.int64), np.zeros(0))
     if len(band) == 0 or len(x) == 0:
         return empty
     fam_line = band * 2 + edge  # family within a direction
@@ -146,12 +158,11 @@ def grid_intersections(x, y, line, direction, band, edge, coord, radius: float, 
         py = fh[:, 0] + fh[:, 1] * (px - x0)
     ok = np.isfinite(px) & np.isfinite(py) & (wv.sum(1) >= 4) & (wh.sum(1) >= 4)
     ok &= np.hypot(px - cx, py - cy) < radius
-    ok &= np.fmax(rv, rh) <= max_fit_rms
     lv, lh = line[a], line[b]
     cam = np.c_[px, py][ok]
     proj = np.c_[coord[lv], coord[lh]][ok]
     return (cam, proj, np.c_[band[lv], band[lh]][ok], np.c_[edge[lv], edge[lh]][ok],
-            np.c_[lv, lh][ok])
+            np.c_[lv, lh][ok], np.fmax(rv, rh)[ok])
 
 
 def clean_crossings(sig: np.ndarray, a: np.ndarray, r: np.ndarray, st: np.ndarray, d: int,
@@ -1732,11 +1743,14 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     sp = np.concatenate(spacing) if spacing else np.zeros(0)
     pitch_px = float(np.median(sp)) if len(sp) else 20.0
     band_px = pitch_px * pattern.band / pattern.pitch
-    cam, proj, cb, ce, cl = grid_intersections(px, py, line, ldir, lab, ledge, coord,
-                                               radius=max(2.0, 0.5 * band_px) + 1.5 * sigma)
+    cam, proj, cb, ce, cl, fit_rms = _intersections(px, py, line, ldir, lab, ledge, coord,
+                                                    max(2.0, 0.5 * band_px) + 1.5 * sigma, 8)
     # whole-grid consistency: intersections that disagree with their neighbours reveal a
     # wrongly labelled line; lines with more inconsistent than consistent crossings are dropped
     okc = grid_consistency(cam, proj, tol=0.5 * pattern.band)
+    # all of them serve the checks of the lines; the result keeps those whose two fits are
+    # straight edges (grid_intersections' max_fit_rms)
+    straight = fit_rms <= INTERSECTION_FIT_RMS
     bad_n = np.bincount(cl[~okc].ravel(), minlength=nl)
     good_n = np.bincount(cl[okc].ravel(), minlength=nl)
     # and lines left with fewer than min_length points after the point filters
@@ -1779,7 +1793,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         px, py, strength, line = px[kp], py[kp], strength[kp], new_id[line[kp]]
         lab, ldir, ledge, coord = lab[keepl], ldir[keepl], ledge[keepl], coord[keepl]
         votes_k, agree_k = votes[good][keepl], agree[good][keepl]
-        sel_i = okc & keepl[cl].all(axis=1)
+        sel_i = okc & straight & keepl[cl].all(axis=1)
         cam, proj, cb, ce = cam[sel_i], proj[sel_i], cb[sel_i], ce[sel_i]
         cl = new_id[cl[sel_i]]
         nl = len(lab)
@@ -1788,7 +1802,8 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         start = stop - counts
     else:
         votes_k, agree_k = votes[good], agree[good]
-        cam, proj, cb, ce, cl = cam[okc], proj[okc], cb[okc], ce[okc], cl[okc]
+        sel_i = okc & straight
+        cam, proj, cb, ce, cl = cam[sel_i], proj[sel_i], cb[sel_i], ce[sel_i], cl[sel_i]
     if smooth_reach > 0 and len(px):
         # after every point filter (they judge the points as measured) and the intersections:
         # the points' noise is partly independent from row to row, and a local weighted line
