@@ -1453,6 +1453,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     del lin, wl
     sig = nrm.signal
     band_px_est = band_width_px(sig, pattern, nrm.valid)
+    pitch_px_est = band_px_est * pattern.pitch / pattern.band  # one pattern pitch, camera px
     if sigma is None:
         per_band = sigma_per_band
         if per_band is None:
@@ -1612,10 +1613,9 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
             label, interpolation_rounds)
         label = check_all_adjacency(label)
     if fit_rounds and fine:
-        fit_r = fit_radius * band_px_est * pattern.pitch / pattern.band
+        fit_r = fit_radius * pitch_px_est
         # lines of a pitch or more may be extrapolated to (fit_reach), shorter ones not
-        long_line = (np.bincount(line, minlength=len(label))[line]
-                     >= band_px_est * pattern.pitch / pattern.band)
+        long_line = np.bincount(line, minlength=len(label))[line] >= pitch_px_est
         reach_margin = np.where(long_line, -fit_reach * pattern.pitch, 2.0)
         rows = rows if interpolation_rounds else row_order(px, py, cls)
 
@@ -1630,7 +1630,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         label = _until_stable(fit_round, label, fit_rounds)
         label = check_all_adjacency(label)
     if epipolar is not None and fine and epipolar_rounds:
-        radius = epipolar_radius * band_px_est * pattern.pitch / pattern.band
+        radius = epipolar_radius * pitch_px_est
 
         def epipolar_round(lab):
             pred = epipolar_coordinates(lab, px, py, cls, line, pattern, epipolar, radius,
@@ -1748,9 +1748,9 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     # whole-grid consistency: intersections that disagree with their neighbours reveal a
     # wrongly labelled line; lines with more inconsistent than consistent crossings are dropped
     okc = grid_consistency(cam, proj, tol=0.5 * pattern.band)
-    # all of them serve the checks of the lines; the result keeps those whose two fits are
-    # straight edges (grid_intersections' max_fit_rms)
-    straight = fit_rms <= INTERSECTION_FIT_RMS
+    # all of them serve the checks of the lines; the result keeps the consistent ones whose
+    # two fits are straight edges (grid_intersections' max_fit_rms)
+    keep_i = okc & (fit_rms <= INTERSECTION_FIT_RMS)
     bad_n = np.bincount(cl[~okc].ravel(), minlength=nl)
     good_n = np.bincount(cl[okc].ravel(), minlength=nl)
     # and lines left with fewer than min_length points after the point filters
@@ -1780,12 +1780,11 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
             keep_pt[kk[off]] = False
     kept_n = np.bincount(line[keep_pt], minlength=nl)
     drop |= kept_n < min_length
-    if min_checked_length > 0 and np.isfinite(band_px_est):
+    if min_checked_length > 0 and np.isfinite(pitch_px_est):
         # a short line (counted after the point filters) that no consistent intersection
         # confirms (a piece of an occluding contour or of a shadow edge that took a
         # neighbour's label) is dropped
-        drop |= (good_n == 0) & (kept_n < min_checked_length * band_px_est * pattern.pitch
-                                 / pattern.band)
+        drop |= (good_n == 0) & (kept_n < min_checked_length * pitch_px_est)
     if np.any(drop) or not np.all(keep_pt):
         keepl = ~drop
         new_id = np.cumsum(keepl) - 1
@@ -1793,7 +1792,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         px, py, strength, line = px[kp], py[kp], strength[kp], new_id[line[kp]]
         lab, ldir, ledge, coord = lab[keepl], ldir[keepl], ledge[keepl], coord[keepl]
         votes_k, agree_k = votes[good][keepl], agree[good][keepl]
-        sel_i = okc & straight & keepl[cl].all(axis=1)
+        sel_i = keep_i & keepl[cl].all(axis=1)
         cam, proj, cb, ce = cam[sel_i], proj[sel_i], cb[sel_i], ce[sel_i]
         cl = new_id[cl[sel_i]]
         nl = len(lab)
@@ -1802,8 +1801,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         start = stop - counts
     else:
         votes_k, agree_k = votes[good], agree[good]
-        sel_i = okc & straight
-        cam, proj, cb, ce, cl = cam[sel_i], proj[sel_i], cb[sel_i], ce[sel_i], cl[sel_i]
+        cam, proj, cb, ce, cl = cam[keep_i], proj[keep_i], cb[keep_i], ce[keep_i], cl[keep_i]
     if smooth_reach > 0 and len(px):
         # after every point filter (they judge the points as measured) and the intersections:
         # the points' noise is partly independent from row to row, and a local weighted line

@@ -316,7 +316,7 @@ def line_taps(ix: np.ndarray, iy: np.ndarray, axis, slope: np.ndarray, step,
     across, the image is interpolated by cubic convolution (Keys 1981, a = -0.5: exact for
     quadratics, where the linear interpolation's error across a tilted edge's profile would
     shift the fitted peak). The image's border clamps. ``(img.ravel()[idx] * wts).sum(-1)``
-    is the sample (:func:`_along_line`); the taps serve every image of that shape.
+    is the sample (:func:`sample_taps`); the taps serve every image of that shape.
 
     Parameters
     ----------
@@ -359,12 +359,16 @@ def line_taps(ix: np.ndarray, iy: np.ndarray, axis, slope: np.ndarray, step,
     return yy * w + xx, wts
 
 
+def sample_taps(img: np.ndarray, idx: np.ndarray, wts: np.ndarray) -> np.ndarray:
+    """``img`` (H, W) sampled with the taps of :func:`line_taps`, float64 (N, K)."""
+    return (img.ravel()[idx] * wts).sum(axis=2)
+
+
 def _along_line(img: np.ndarray, ix: np.ndarray, iy: np.ndarray, axis: int,
                 slope: np.ndarray, step) -> np.ndarray:
     """``img`` (H, W) at the (K,) ``step`` px along the fit lines through the pixels
     (:func:`line_taps`), float64 (N, K)."""
-    idx, wts = line_taps(ix, iy, axis, slope, step, img.shape)
-    return (img.ravel()[idx] * wts).sum(axis=2)
+    return sample_taps(img, *line_taps(ix, iy, axis, slope, step, img.shape))
 
 
 def _subpixel(lm: np.ndarray, l0: np.ndarray, lp: np.ndarray,
@@ -619,14 +623,10 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     ux, uy = (np.asarray(across, np.float64).T[:, :, None] * sgn[None, :, None])
 
     # (N, 3): the samples along each point's fit line, from taps shared by all the images
-    idx, wts = line_taps(ix, iy, np.where(vert, 0, 1), sl, steps, channels[0].shape)
-
-    def on_line(img):
-        return (img.ravel()[idx] * wts).sum(axis=2)
-
+    taps = line_taps(ix, iy, np.where(vert, 0, 1), sl, steps, channels[0].shape)
     for c in range(3):
         gx, gy = gradient(channels[c], sigma, sigma_along)
-        prof = on_line(gx) * ux + on_line(gy) * uy
+        prof = sample_taps(gx, *taps) * ux + sample_taps(gy, *taps) * uy
         cx, cy = gx[iy, ix], gy[iy, ix]
         along = nx * cy - ny * cx
         normal_d = nx * cx + ny * cy
