@@ -567,13 +567,16 @@ def test_smooth_chains_keeps_lines_and_lowers_noise():
 
 
 def test_smoothing_lowers_teapot_rms(teapot, teapot_result):
-    """Along-edge smoothing (``smooth_reach``, default 3 px) lowers the RMS and leaves the
-    lines and the intersections as they are (1280 x 960 teapot view: rms 0.0562 -> 0.0531 px,
-    7.1 MP bench view: 0.0468 -> 0.0427 px)."""
+    """Along-edge smoothing (``smooth_reach``, default 3 px) lowers the point noise and leaves
+    the lines and the intersections as they are. 1280 x 960 teapot view: median |error|
+    0.0243 -> 0.0219 px, RMS 0.0589 -> 0.0559 px (the RMS is led by the few points off by
+    tenths of a px, which a smoother does not move; before ``plane_radius`` kept more of
+    them, 0.0562 -> 0.0531 px); 7.1 MP bench view: RMS 0.0465 -> 0.0391 px."""
     v, pat = teapot
     ev = evaluate_detection(teapot_result, v.truth, pat)
     off = evaluate_detection(detect_grid(v.grid, pat, v.white, smooth_reach=0), v.truth, pat)
-    assert ev["rms_px"] < 0.95 * off["rms_px"], (off, ev)
+    assert ev["median_abs_px"] < 0.93 * off["median_abs_px"], (off, ev)
+    assert ev["rms_px"] < 0.97 * off["rms_px"], (off, ev)
     assert abs(ev["coverage"] - off["coverage"]) < 0.005, (off, ev)
     assert ev["intersection_rms_px"] == pytest.approx(off["intersection_rms_px"], rel=0.02)
     assert ev["label_rate"] >= 0.995 and ev["wrong_lines_over_20px"] == 0, ev
@@ -846,6 +849,47 @@ def test_row_support_interpolates_extrapolates_and_flags_lone_points():
     assert res[0] == pytest.approx(abs(100.0 - (112 - 6 * 20.5 / 10)))
     assert res[3] == pytest.approx(abs(144.0 - (112 + 16 * 20.5 / 10)))
     assert np.isnan(res[4:]).all()
+
+
+def test_plane_support_from_other_lines_in_two_dimensions():
+    """A point is judged by the plane through the edges of *other* lines of its family around
+    it: its distance (camera px) to the edge the plane predicts for its coordinate."""
+    from nurbscan.detect.core import plane_support
+
+    # vertical-band edges x = 2 * coord + 0.1 * y + 100 (coord 0, 6, 16, ..., one line each),
+    # staggered so that no pixel row holds two of them: row_support has nothing to go on
+    coords = np.array([0.0, 6.0, 16.0, 22.0, 32.0, 38.0])
+    xs, ys, cs, ls = [], [], [], []
+    for i, c in enumerate(coords):
+        y = np.arange(12.0) + 12 * i
+        xs.append(2 * c + 0.1 * y + 100)
+        ys.append(y)
+        cs.append(np.full(y.size, c))
+        ls.append(np.full(y.size, i))
+    x, y, coord, line = map(np.concatenate, (xs, ys, cs, ls))
+    d = np.zeros(len(x), np.int64)
+    assert np.abs(plane_support(x, y, d, coord, line, radius=80.0, k=24)).max() < 1e-9
+    x[line == 2] += 0.75  # line 2 measured 0.75 px off its edge
+    res = plane_support(x, y, d, coord, line, radius=80.0, k=24)
+    # line 2 is judged by the others alone (its own points do not support it): 0.75 px off
+    # the edge of its coordinate, along x (the edges are near vertical, |dx/dy| = 0.1)
+    assert res[line == 2] == pytest.approx(0.75 / np.hypot(1, 0.1), abs=1e-9)
+    assert np.isfinite(res).all()
+    # only `at` is judged
+    at = np.nonzero(line == 3)[0]
+    r_at = plane_support(x, y, d, coord, line, radius=80.0, k=24, at=at)
+    assert np.array_equal(np.isfinite(r_at), line == 3) and np.allclose(r_at[at], res[at])
+    # no support: too few neighbours within the radius, or all on one other line (no spread
+    # across the edges), or a plane that the neighbours do not fit (a depth step)
+    assert np.isnan(plane_support(x, y, d, coord, line, radius=5.0, k=24)).all()
+    two = line <= 1
+    assert np.isnan(plane_support(x[two], y[two], d[two], coord[two], line[two],
+                                  radius=80.0, k=8)).all()
+    step = coord + np.where(np.arange(len(x)) % 2 == 0, 0.0, 20.0)
+    assert np.isnan(plane_support(x, y, d, step, line, radius=80.0, k=24)).all()
+    # the horizontal family is judged apart: a lone horizontal line has no support
+    d2 = np.where(line == 5, 1, 0)
+    assert np.isnan(plane_support(x, y, d2, coord, line, radius=80.0, k=24)[line == 5]).all()
 
 
 def _rows_of_vertical_edges(pattern, bands, rows=10, scale=1.5, x0=50.0):
@@ -1321,7 +1365,8 @@ def test_oblique_families_measured_by_their_own_components(pattern):
     obliquely): measuring each family by its own gradient component (``oblique``) instead of
     g_x / g_y takes the crossing bands' tilted edges out of the profiles (measured, with the
     balanced fit line: rms 0.0705 -> 0.0370 px, coverage 0.583 -> 0.681, intersections 0.54
-    -> 0.155 px)."""
+    -> 0.155 px; with ``plane_radius``, which supports more of the points of either way:
+    rms 0.0711 -> 0.0374 px, coverage 0.632 -> 0.712, intersections 0.537 -> 0.162 px)."""
     g, w, px, py = synth_view(pattern, 480, 360, noise=0.01, seed=1,
                               field=_oblique_field(20.0, 60.0, 0.5))
     truth = {"proj_x": px, "proj_y": py, "lit": np.ones(px.shape, bool),
@@ -1331,7 +1376,7 @@ def test_oblique_families_measured_by_their_own_components(pattern):
         on, off = (evaluate_detection(detect_grid(g, pattern, w, oblique=o), truth, pattern)
                    for o in (True, False))
     assert on["rms_px"] < 0.045 and on["rms_px"] < 0.6 * off["rms_px"], (off, on)
-    assert on["coverage"] > off["coverage"] + 0.08, (off, on)
+    assert on["coverage"] > off["coverage"] + 0.06, (off, on)
     assert on["intersection_rms_px"] < 0.5 * off["intersection_rms_px"], (off, on)
     assert on["label_rate"] >= 0.995 and on["wrong_lines_over_20px"] == 0, on
 
@@ -1480,3 +1525,18 @@ def test_fit_reach_labels_beyond_the_last_labelled_rows(teapot, teapot_result):
         warnings.simplefilter("ignore")
         inside = detect_grid(v.grid, pat, v.white, fit_reach=-0.125)  # the rule before
     assert_more_labelled(inside, teapot_result, v.truth, pat, gain=0.0015)
+
+
+def test_plane_support_keeps_pieces_whose_rows_are_hidden(teapot, teapot_result):
+    """Points without support in their row are kept when the plane through the other lines
+    around them supports them (``plane_radius``): on the teapot's lower body the slanted
+    vertical bands hide the neighbouring horizontal edges of most columns (measured at
+    1280 x 960: coverage 0.5803 -> 0.5944, RMS 0.0534 -> 0.0559 px, labels 99.98 %, no wrong
+    line; 7.1 MP view 0: 0.7282 -> 0.7431, 0.0375 -> 0.0391 px)."""
+    v, pat = teapot
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rows_only = detect_grid(v.grid, pat, v.white, plane_radius=0)
+    assert_more_labelled(rows_only, teapot_result, v.truth, pat, gain=0.01)
+    ev = evaluate_detection(teapot_result, v.truth, pat)
+    assert ev["rms_px"] < 0.06 and ev["intersection_rms_px"] < 0.15, ev
