@@ -566,6 +566,25 @@ def test_smooth_chains_keeps_lines_and_lowers_noise():
     assert np.array_equal(smooth_chains(along, true, line, weight, reach=0), true)
 
 
+def test_local_residual_is_the_distance_from_the_neighbours_line():
+    """The residual of a point is its distance from the straight line through its chain
+    neighbours, perpendicular to that line: the same on an edge tilted across its sampling
+    axis as on an upright one."""
+    from nurbscan.detect.lines import local_residual
+
+    along = np.arange(30.0)
+    line = np.zeros(30, np.int64)
+    for slope in (0.0, 0.5, 2.0):
+        across = 3.0 + slope * along
+        across[15] += 0.3 * np.hypot(1.0, slope)  # 0.3 px off the edge, perpendicular
+        res = local_residual(along, across, line, reach=4)
+        assert res[15] == pytest.approx(0.3, abs=1e-12)
+        # the neighbours' own lines are fitted through it: they move a little
+        near = np.r_[11:15, 16:20]
+        assert np.all(res[near] > 0) and np.all(res[near] < 0.3 / 4)
+        assert np.abs(np.delete(res, np.r_[11:20])).max() < 1e-12
+
+
 def test_smoothing_lowers_teapot_rms(teapot, teapot_result):
     """Along-edge smoothing (``smooth_reach``, default 3 px) lowers the point noise and leaves
     the lines and the intersections as they are. 1280 x 960 teapot view: median |error|

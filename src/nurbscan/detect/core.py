@@ -1241,7 +1241,16 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         points that only the re-measurement keeps (``keep_unpaired``) and its filters.
     refit_residual : float
         After refinement, drop points farther than this (px) from the straight line through
-        their chain neighbours; 0 keeps them.
+        their chain neighbours; 0 keeps them. The distance is perpendicular to that line
+        (:func:`~nurbscan.detect.lines.local_residual`; so is ``max_residual``'s): measured
+        along the pixel row (column) instead, the edges that slant across their rows (the
+        vertical bands on the teapot's lower body and lid) lost their points to noise
+        enlarged by ``sqrt(1 + slope^2)``. 7.1 MP teapot view 0, along the row ->
+        perpendicular: at 1x noise coverage 0.7431 -> 0.7537, RMS 0.0391 -> 0.0396 px,
+        intersections 0.155 -> 0.161 px; at 0x 0.7781 -> 0.7820, 0.0269 -> 0.0276 px; at 3x
+        0.6512 -> 0.6632, 0.0653 -> 0.0660 px; demo scan views 0-7: 0.7744 -> 0.7845, RMS
+        0.0396 -> 0.0402 px, no wrong line; 1280 x 960 view 0.5944 -> 0.6012, 0.0559 ->
+        0.0568 px.
     end_residual : float
         Drop the first and the last point of every chain when farther than this (camera px)
         from the straight line through the chain's next points (:func:`chain_end_residual`);

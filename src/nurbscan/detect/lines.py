@@ -220,15 +220,18 @@ def local_residual(along: np.ndarray, across: np.ndarray, line: np.ndarray, reac
 
     For point i of a chain, the points i - reach .. i + reach of the same chain, i itself left
     out, are fitted by least squares with ``across = c0 + c1 (along - along_i)``; the residual
-    is ``|across_i - c0|`` px (0 where fewer than 3 neighbours exist). A point off its own
-    chain by more than the noise is an outlier (a disturbed profile at a crossing's corner).
-    Arrays (M,) ordered by chain as returned by :func:`trace_lines`.
+    is the distance from that line, ``|across_i - c0| / sqrt(1 + c1^2)`` px, perpendicular
+    to it (0 where fewer than 3 neighbours exist): a chain tilted by ``atan(c1)`` from its
+    sampling axis has its ``across`` noise enlarged by ``sqrt(1 + c1^2)``, and its points'
+    distance to the true edge is the perpendicular one. A point off its own chain by more
+    than the noise is an outlier (a disturbed profile at a crossing's corner). Arrays (M,)
+    ordered by chain as returned by :func:`trace_lines`.
     """
     if len(along) == 0:
         return np.zeros(0)
     offs = np.r_[np.arange(-reach, 0), np.arange(1, reach + 1)]
-    c0, _, sw, _ = _window_fit(along, across, line, offs)
-    res = np.abs(across - c0)
+    c0, c1, sw, _ = _window_fit(along, across, line, offs)
+    res = np.abs(across - c0) / np.hypot(1.0, np.nan_to_num(c1))
     return np.where((sw >= 3) & np.isfinite(res), res, 0.0)
 
 
