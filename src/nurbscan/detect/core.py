@@ -1875,7 +1875,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
             if len(lone):
                 pres = plane_support(px, py, ldir[line], coord[line], line,
                                      plane_radius * pitch_px_est, k=plane_k, at=lone)
-                kind[lone] = np.where(pres[lone] <= plane_tol, 3, kind[lone])
+                kind[lone] = np.where(pres[lone] <= plane_tol, 3, kind[lone])  # 3: plane
         share = np.bincount(line, weights=kind > 0, minlength=nl) / np.maximum(counts, 1)
         drop |= share < min_row_support
         if max_row_residual > 0:
