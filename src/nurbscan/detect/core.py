@@ -1869,7 +1869,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
             # support them (slanted crossing bands hide the rows' neighbours; a row's
             # extrapolation is poor where the band spacing changes along it; farther off,
             # the label is misread, and pieces of one misread edge would support each other)
-            far = ((kind == 2) & (rres > max_row_residual)
+            far = ((kind == 2) & (max_row_residual > 0) & (rres > max_row_residual)
                    & (rres <= 0.25 * pitch_px_est))
             lone = np.nonzero((kind == 0) | far)[0]
             if len(lone):

@@ -3,6 +3,10 @@
 OpenCV does the decoding and encoding (``cv2.imread`` / ``cv2.imwrite``); this module fixes
 the channel order to RGB and the sample type to float in [0, 1] on request, and turns every
 failure into a one-line :class:`~nurbscan.errors.NurbscanError` naming the file.
+
+:func:`chroma_subsampled` reads a JPEG's frame header by hand: OpenCV decodes the colour
+to full resolution and does not report the sampling factors, and the one library that does
+(Pillow's ``JpegImagePlugin.get_sampling``) would be a dependency for a few bytes of header.
 """
 
 from __future__ import annotations
