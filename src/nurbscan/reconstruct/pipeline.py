@@ -130,7 +130,7 @@ def detect_options(rig) -> dict:
 
     The point filters that drop single points near the band corners and off the straight
     line through their neighbours are off as well (``max_residual``, ``refit_residual``,
-    ``end_residual`` 0, ``keep_partner`` False, ``min_width`` 0, ``min_strength`` 0.06),
+    ``end_residual`` 0, ``partner_drops`` "none", ``min_width`` 0, ``min_strength`` 0.06),
     and so is the one that drops lines without two points paired across a band
     (``min_paired`` 0): the 3-D curve fits remove outliers themselves. With the looser
     crossing test and the tangent reach of the network
@@ -160,7 +160,7 @@ def detect_options(rig) -> dict:
     """
     return {"epipolar": functools.partial(other_coordinate, rig), "min_row_support": 0.0,
             "max_row_residual": 0.0, "keep_unsupported": True, "max_residual": 0.0,
-            "refit_residual": 0.0, "end_residual": 0.0, "keep_partner": False,
+            "refit_residual": 0.0, "end_residual": 0.0, "partner_drops": "none",
             "min_width": 0.0, "min_strength": 0.06, "min_paired": 0, "sigma_per_band": 10.0,
             "fit_rounds": 0, "corner_dominance": 1.0, "smooth_reach": 0, "min_checked_length": 0}
 
