@@ -1877,7 +1877,8 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
             res = local_residual(*_along_across(px, py, vk), line)
             kp &= res <= refit_residual
         if partner_drops != "none":
-            # a point whose crossing partner was dropped is as disturbed (same row, same band)
+            # a point whose crossing partner was dropped is as disturbed (same row, same band);
+            # with "unmeasured", not when the partner went as a kink (its own corner)
             kept = np.zeros(len(keep), bool)
             kidx = np.nonzero(keep)[0]
             kept[kidx[kp if partner_drops == "all" else measured]] = True
@@ -1941,8 +1942,10 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
             # median, farther than max_row_residual (across the line) from where the
             # labelled edges of their rows put them is no edge of its band (demo view 4: a
             # 14 px edge inside the crossing of two red bands, drifting 0.4 -> 5 px off)
-            drop |= (good_n == 0) & (row_disagreement(px, py, ldir[line] == 0, line, rres, kind,
-                                                      nl) > max_row_residual)
+            un = np.nonzero(good_n[line] == 0)[0]  # whole lines, in chain order
+            off = row_disagreement(px[un], py[un], ldir[line[un]] == 0, line[un], rres[un],
+                                   kind[un], nl) > max_row_residual
+            drop |= (good_n == 0) & off
         if not keep_unsupported:
             keep_pt &= kind > 0
         for _ in range(3 if new_end_residual > 0 else 0):
