@@ -1912,6 +1912,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     keep_i = okc & (fit_rms <= INTERSECTION_FIT_RMS)
     bad_n = np.bincount(cl[~okc].ravel(), minlength=nl)
     good_n = np.bincount(cl[okc].ravel(), minlength=nl)
+    unconfirmed = good_n == 0  # lines without a consistent intersection
     # and lines left with fewer than min_length points after the point filters
     drop = ((bad_n >= 2) & (bad_n > good_n)) | (counts < min_length)
     keep_pt = np.ones(len(px), bool)
@@ -1942,10 +1943,11 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
             # median, farther than max_row_residual (across the line) from where the
             # labelled edges of their rows put them is no edge of its band (demo view 4: a
             # 14 px edge inside the crossing of two red bands, drifting 0.4 -> 5 px off)
-            un = np.nonzero(good_n[line] == 0)[0]  # whole lines, in chain order
-            off = row_disagreement(px[un], py[un], ldir[line[un]] == 0, line[un], rres[un],
-                                   kind[un], nl) > max_row_residual
-            drop |= (good_n == 0) & off
+            # over the unconfirmed lines' points (whole lines, in chain order); the other
+            # lines' medians are NaN and compare False
+            un = np.nonzero(unconfirmed[line])[0]
+            drop |= row_disagreement(px[un], py[un], ldir[line[un]] == 0, line[un], rres[un],
+                                     kind[un], nl) > max_row_residual
         if not keep_unsupported:
             keep_pt &= kind > 0
         for _ in range(3 if new_end_residual > 0 else 0):
@@ -1964,7 +1966,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         # a short line (counted after the point filters) that no consistent intersection
         # confirms (a piece of an occluding contour or of a shadow edge that took a
         # neighbour's label) is dropped
-        drop |= (good_n == 0) & (kept_n < min_checked_length * pitch_px_est)
+        drop |= unconfirmed & (kept_n < min_checked_length * pitch_px_est)
     if np.any(drop) or not np.all(keep_pt):
         keepl = ~drop
         new_id = np.cumsum(keepl) - 1
