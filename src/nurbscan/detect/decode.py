@@ -6,10 +6,12 @@ rising / falling where the row crosses vertical bands; a rising point followed b
 centre. n consecutive band crossings of one row that are evenly spaced (no band missing between
 them) form a window; ``pattern.lookup`` gives the index of its first band, hence a vote for the
 band index of every crossing in the window (its own position in the window added). Columns and
-the horizontal-edge points are handled the same way. Each edge line collects the votes of all
-its points; it is labelled with the winning index only when enough votes agree (``min_votes``
-and a ``min_agreement`` fraction), so that a misread colour, which spoils a few windows only,
-is outvoted, and lines without a clear majority are dropped (label -1), not guessed.
+the horizontal-edge points are handled the same way. Where the surface shears the grid, the
+"rows" are the other family's edges instead (:func:`oblique_runs`). Each edge line collects
+the votes of all its points; it is labelled with the winning index only when enough votes
+agree (``min_votes`` and a ``min_agreement`` fraction), so that a misread colour, which spoils
+a few windows only, is outvoted, and lines without a clear majority are dropped (label -1),
+not guessed.
 
 Colour classification: the chromaticity ``c / max(c)`` of the normalised colour at each band
 centre is assigned to the nearest of the q pattern colours, whose centres are first adapted to
@@ -139,6 +141,120 @@ def band_crossings(across: np.ndarray, run: np.ndarray, cls: np.ndarray, ratio: 
     with np.errstate(invalid="ignore"):
         okw = np.isnan(nb) | ((width > (1 - tol) * ratio * nb) & (width < (1 + tol) * ratio * nb))
     return order, start[okw & (width > 0.5)]
+
+
+def oblique_runs(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.ndarray,
+                 shape: tuple[int, int], reach: float, tol: float = 0.75
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Group edge points of one family into runs along given directions (slanted "rows").
+
+    On an upright grid a pixel column crosses the horizontal bands one after the other, so
+    the column is the run along which :func:`band_crossings` pairs their edges and
+    :func:`window_votes` reads their colours. Where the surface shears the grid, the bands
+    of the other family slant across the column: the column then leaves a cell of the grid
+    after one band and meets the next bands inside the slanted ones, and no window is read
+    (the teapot's lid, where the two families meet at about 33 degrees). The run the pattern
+    is read along is the other family's edge direction (``direction``: the point's
+    :attr:`~nurbscan.detect.edges.EdgePoints.across` vector), along which the cells of one
+    grid column line up.
+
+    Each point is linked to the first point of another chain (``line``) that the ray from it
+    along its ``direction`` meets: the ray is sampled every half px up to ``reach`` px, the
+    points are looked up in a raster of their pixels and the pixels around them, and of the
+    point met and its three chain neighbours on either side the one nearest the ray is
+    taken, when it lies within ``tol`` px of it. A point met by several rays keeps the
+    nearest one. The links form paths: the runs.
+
+    Parameters
+    ----------
+    x, y : ndarray (N,) float
+        Points, camera px, grouped by chain and in chain order.
+    direction : ndarray (N, 2) float
+        Direction of each point's run (any length, oriented as the points' rising edge).
+    line : ndarray (N,) int
+        Chain of each point (a point is not linked to its own chain).
+    shape : (H, W)
+        Image size.
+    reach, tol : float
+        Longest link and largest distance from the ray, px.
+
+    Returns
+    -------
+    run : ndarray (N,) int64
+        Run id of each point (0 .. R - 1; a point without links is a run of its own).
+    along : ndarray (N,) float64
+        Position along the run (px, along the run's mean direction).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(x)
+    if n == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.float64)
+    h, w = shape
+    u = np.asarray(direction, np.float64)
+    u = u / np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-12)[:, None]
+    # raster of the points, each also in the 8 pixels around its own (where no point is)
+    grid = np.full((h + 2, w + 2), -1, np.int32)
+    gx = np.clip(np.rint(x).astype(np.int64), -1, w) + 1
+    gy = np.clip(np.rint(y).astype(np.int64), -1, h) + 1
+    idx = np.arange(n, dtype=np.int32)
+    for dy, dx in ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)):
+        grid[np.clip(gy + dy, 0, h + 1), np.clip(gx + dx, 0, w + 1)] = idx
+    grid[gy, gx] = idx
+    grid[0, :] = grid[-1, :] = -1
+    grid[:, 0] = grid[:, -1] = -1
+    succ = np.full(n, -1, np.int64)
+    perp_of = np.full(n, np.inf)
+    active = np.arange(n)
+    steps = np.arange(0.5, max(float(reach), 0.5) + 0.25, 0.5)
+    for c0 in range(0, len(steps), 8):
+        if not len(active):
+            break
+        st = steps[c0:c0 + 8]
+        xa, ya, ua = x[active], y[active], u[active]
+        sx = np.clip(np.rint(xa[:, None] + st * ua[:, :1]).astype(np.int64), -1, w) + 1
+        sy = np.clip(np.rint(ya[:, None] + st * ua[:, 1:]).astype(np.int64), -1, h) + 1
+        j = grid[sy, sx].astype(np.int64)  # (A, C): the points met, in step order
+        hit = (j >= 0) & (line[np.maximum(j, 0)] != line[active][:, None])
+        ri, ci = np.nonzero(hit)  # row-major: each ray's hits in step order
+        jj = j[ri, ci]
+        rx, ry = x[jj] - xa[ri], y[jj] - ya[ri]
+        s = rx * ua[ri, 0] + ry * ua[ri, 1]
+        pp = np.abs(rx * ua[ri, 1] - ry * ua[ri, 0])
+        ok = (s > 0.5) & (pp <= 1.5)
+        ri, jj = ri[ok], jj[ok]
+        first = np.r_[True, ri[1:] != ri[:-1]] if len(ri) else np.zeros(0, bool)
+        ri, jj = ri[first], jj[first]  # the first point met by each ray
+        # of it and its chain neighbours, the nearest to the ray (the raster's pixels around
+        # a point let the ray meet an edge up to three points early or late)
+        cand = jj[:, None] + np.arange(-3, 4)
+        cand = np.clip(cand, 0, n - 1)
+        same = line[cand] == line[jj][:, None]
+        rx = x[cand] - xa[ri][:, None]
+        ry = y[cand] - ya[ri][:, None]
+        pp = np.where(same, np.abs(rx * ua[ri, 1:] - ry * ua[ri, :1]), np.inf)
+        k = np.argmin(pp, axis=1)
+        best = cand[np.arange(len(ri)), k]
+        pbest = pp[np.arange(len(ri)), k]
+        good = pbest <= tol
+        succ[active[ri[good]]] = best[good]
+        perp_of[active[ri[good]]] = pbest[good]
+        done = np.zeros(len(active), bool)
+        done[ri] = True  # a ray stops at the first edge it meets
+        active = active[~done]
+    src = np.nonzero(succ >= 0)[0]
+    dst = succ[src]
+    # a point met by several rays keeps the one passing nearest to it
+    o = np.lexsort((perp_of[src], dst))
+    first = np.r_[True, dst[o][1:] != dst[o][:-1]] if len(o) else np.zeros(0, bool)
+    src, dst = src[o][first], dst[o][first]
+    g = coo_matrix((np.ones(len(src)), (src, dst)), shape=(n, n))
+    _, run = connected_components(g, directed=False)
+    mu = np.stack([np.bincount(run, weights=u[:, c]) for c in (0, 1)], 1)
+    mu /= np.maximum(np.hypot(mu[:, 0], mu[:, 1]), 1e-12)[:, None]
+    along = x * mu[run, 0] + y * mu[run, 1]
+    return run.astype(np.int64), along
 
 
 def window_votes(order: np.ndarray, start: np.ndarray, run: np.ndarray, across: np.ndarray,

@@ -223,7 +223,7 @@ def evaluate_detection(result: DetectionResult, truth, pattern, match_radius: fl
         cx, cy = result.cam[:, 0], result.cam[:, 1]
         xi = np.clip(np.floor(cx).astype(np.int64), 0, w - 1)
         yi = np.clip(np.floor(cy).astype(np.int64), 0, h - 1)
-        good = cells[yi, xi]
+        good = cells[yi, xi] & (cx >= 0) & (cy >= 0) & (cx <= w - 1) & (cy <= h - 1)
         vx, gxx, gxy = _field_at(fx0, cx, cy)
         vy, gyx, gyy = _field_at(fy0, cx, cy)
         jac = np.stack([np.c_[gxx, gxy], np.c_[gyx, gyy]], 1)
