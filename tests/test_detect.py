@@ -881,15 +881,12 @@ def test_oblique_runs_follow_the_other_familys_edges():
     assert len(np.unique(run3)) == len(x)
 
 
-def test_reading_along_the_grid_decodes_a_sheared_view(pattern):
+def test_reading_along_the_grid_decodes_a_sheared_view(pattern, sheared_view):
     """Vertical band normals at 20 degrees, horizontal at 60: the pixel columns leave each
     grid cell after one horizontal band, so few colour windows are read along them; along
     the vertical edges (``read_along="grid"``) they are (measured: coverage 0.717 -> 0.784,
     RMS 0.037 -> 0.039 px, labels 100 %, no wrong line)."""
-    g, w, px, py = synth_view(pattern, 480, 360, noise=0.01, seed=1,
-                              field=_oblique_field(20.0, 60.0, 0.5))
-    truth = {"proj_x": px, "proj_y": py, "lit": np.ones(px.shape, bool),
-             "surface_id": np.zeros(px.shape, np.int32)}
+    g, w, truth = sheared_view
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         r_pix = detect_grid(g, pattern, w, read_along="pixels")
@@ -1154,6 +1151,17 @@ def oblique_view(pattern):
     horizontal ones 2 degrees; bands 12 px wide across, 480 x 360 px."""
     g, w, px, py = synth_view(pattern, 480, 360, noise=0.01, seed=1,
                               field=_oblique_field(50.0, 92.0, 0.5))
+    truth = {"proj_x": px, "proj_y": py, "lit": np.ones(px.shape, bool),
+             "surface_id": np.zeros(px.shape, np.int32)}
+    return g, w, truth
+
+
+@pytest.fixture(scope="module")
+def sheared_view(pattern):
+    """Vertical band normals at 20 degrees from the x axis, horizontal ones at 60 (a grid
+    sheared by 40 degrees), 480 x 360 px: grid and white images and the truth."""
+    g, w, px, py = synth_view(pattern, 480, 360, noise=0.01, seed=1,
+                              field=_oblique_field(20.0, 60.0, 0.5))
     truth = {"proj_x": px, "proj_y": py, "lit": np.ones(px.shape, bool),
              "surface_id": np.zeros(px.shape, np.int32)}
     return g, w, truth
@@ -1494,17 +1502,14 @@ def test_samples_along_a_slanted_line_are_exact_for_quadratics():
     assert np.abs(got - want).max() < 1e-9
 
 
-def test_oblique_families_measured_by_their_own_components(pattern):
+def test_oblique_families_measured_by_their_own_components(pattern, sheared_view):
     """A sheared grid (the two families' normals at 20 and 60 degrees, as on a surface seen
     obliquely): measuring each family by its own gradient component (``oblique``) instead of
     g_x / g_y takes the crossing bands' tilted edges out of the profiles (measured, with the
     balanced fit line: rms 0.0705 -> 0.0370 px, coverage 0.583 -> 0.681, intersections 0.54
     -> 0.155 px; with ``plane_radius``, which supports more of the points of either way:
     rms 0.0711 -> 0.0374 px, coverage 0.632 -> 0.712, intersections 0.537 -> 0.162 px)."""
-    g, w, px, py = synth_view(pattern, 480, 360, noise=0.01, seed=1,
-                              field=_oblique_field(20.0, 60.0, 0.5))
-    truth = {"proj_x": px, "proj_y": py, "lit": np.ones(px.shape, bool),
-             "surface_id": np.zeros(px.shape, np.int32)}
+    g, w, truth = sheared_view
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         on, off = (evaluate_detection(detect_grid(g, pattern, w, oblique=o), truth, pattern)
