@@ -211,20 +211,19 @@ def clean_crossings(sig: np.ndarray, a: np.ndarray, r: np.ndarray, st: np.ndarra
     n = len(a)
     if not len(st):
         return np.zeros(0, bool)
-    rr = r[st].astype(np.float64)
     pl, pr = a[st] - delta, a[st + 1] + delta
     prv = np.maximum(st - 1, 0)
     nxt = np.minimum(st + 2, n - 1)
     room = ((st == 0) | (r[prv] != r[st]) | (a[prv] < pl - 1.0)) & \
         ((st + 2 >= n) | (r[nxt] != r[st]) | (a[nxt] > pr + 1.0))
-    if base is None:
-        lev_l = bilinear(sig, pl, rr) if d == 0 else bilinear(sig, rr, pl)
-        lev_r = bilinear(sig, pr, rr) if d == 0 else bilinear(sig, rr, pr)
-    else:
-        ql = base[st] - delta * step[st]
-        qr = base[st + 1] + delta * step[st + 1]
-        lev_l = bilinear(sig, ql[:, 0], ql[:, 1])
-        lev_r = bilinear(sig, qr[:, 0], qr[:, 1])
+    if base is None:  # the pixel row (column) r
+        base = np.c_[a, r] if d == 0 else np.c_[r, a]
+        step = np.zeros((n, 2))
+        step[:, d] = 1.0
+    ql = base[st] - delta * step[st]
+    qr = base[st + 1] + delta * step[st + 1]
+    lev_l = bilinear(sig, ql[:, 0], ql[:, 1])
+    lev_r = bilinear(sig, qr[:, 0], qr[:, 1])
     return room & (lev_l < dark_level) & (lev_r < dark_level)
 
 
@@ -1707,14 +1706,9 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     acr = pts.across[order].astype(np.float64) if along_grid else None
     for d, name in ((0, "vertical"), (1, "horizontal")):
         sel = np.nonzero((cls // 2) == d)[0]
-        across = (px[sel] if d == 0 else py[sel]).copy()
-        run = (iy[sel] if d == 0 else ix[sel]).astype(np.int64)
-        # the pixel of run coordinate c near point i: base[i] + (c - across[i]) * step[i]
-        base = np.c_[px[sel], iy[sel]] if d == 0 else np.c_[ix[sel], py[sel]]
-        base = base.astype(np.float64)
-        step = np.zeros((len(sel), 2))
-        step[:, d] = 1.0
-        wscale = np.ones(len(sel))  # a width along the run to the width across the edge
+        # runs, the position along them, and the pixel of run coordinate c near point i:
+        # base[i] + (c - across[i]) * step[i]; wscale turns a width along the run into the
+        # width across the edge
         if along_grid and len(sel):
             la = np.hypot(acr[sel, 0], acr[sel, 1])
             step = acr[sel] / la[:, None]
@@ -1722,6 +1716,13 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
                                        1.5 * pitch_px_est)
             base = np.c_[px[sel], py[sel]]
             wscale = 1.0 / la
+        else:
+            across = px[sel] if d == 0 else py[sel]
+            run = iy[sel] if d == 0 else ix[sel]
+            base = np.c_[px[sel], iy[sel]] if d == 0 else np.c_[ix[sel], py[sel]]
+            step = np.zeros((len(sel), 2))
+            step[:, d] = 1.0
+            wscale = np.ones(len(sel))
         o, st = band_crossings(across, run, cls[sel] % 2, ratio, tol=width_tol)
         a = across[o]
         mid = 0.5 * (a[st] + a[st + 1])
