@@ -884,8 +884,9 @@ def test_oblique_runs_follow_the_other_familys_edges():
 def test_reading_along_the_grid_decodes_a_sheared_view(pattern, sheared_view):
     """Vertical band normals at 20 degrees, horizontal at 60: the pixel columns leave each
     grid cell after one horizontal band, so few colour windows are read along them; along
-    the vertical edges (``read_along="grid"``) they are (measured: coverage 0.717 -> 0.784,
-    RMS 0.037 -> 0.039 px, labels 100 %, no wrong line)."""
+    the vertical edges (``read_along="grid"``) they are (measured: coverage 0.722 -> 0.843,
+    RMS 0.038 -> 0.040 px, labels 100 %, no wrong line; 0.717 -> 0.784 while short
+    unconfirmed lines were dropped, ``min_checked_length`` 0.5)."""
     g, w, truth = sheared_view
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -1203,7 +1204,7 @@ def oblique_colour_only(pattern, oblique_view):
     (``fit_rounds=0``): the colour windows and their propagation only, read along the pixel
     rows and columns (``read_along="pixels"``), which leave pieces of the horizontal edges
     unlabelled (along the grid, the default, the windows alone label this view: coverage
-    0.811)."""
+    0.825)."""
     g, w, _ = oblique_view
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -1392,9 +1393,9 @@ def test_family_fit_labels_the_pieces_of_an_oblique_view(pattern, oblique_view, 
                                                          oblique_colour_only):
     """The horizontal pieces that the colour windows leave unlabelled between labelled ones
     take their bands from the family's own coordinate map (measured, both read along the
-    pixel rows: coverage 0.772 -> 0.793, labels 100 %, no wrong line, rms 0.041 -> 0.041 px;
-    earlier 0.748 -> 0.769, and with the row fit line, ``fit_line="row"``: 0.572 -> 0.606,
-    before ``oblique``: 0.450 -> 0.504; along the grid the windows leave none: 0.811 with
+    pixel rows: coverage 0.788 -> 0.814, labels 100 %, no wrong line, rms 0.041 -> 0.041 px;
+    with ``min_checked_length`` 0.5 0.772 -> 0.793, earlier 0.748 -> 0.769, and with the row fit line, ``fit_line="row"``: 0.572 -> 0.606,
+    before ``oblique``: 0.450 -> 0.504; along the grid the windows leave none: 0.825 with
     and without it)."""
     g, w, truth = oblique_view
     with warnings.catch_warnings():
@@ -1407,9 +1408,11 @@ def test_balanced_fit_line_measures_an_oblique_view(pattern, oblique_view, obliq
     """On the oblique view (families 42 degrees apart) the balanced fit line takes the
     crossing bands' pull out of the edge points next to them (module notes of
     :mod:`nurbscan.detect.edges`; measured against the row, both read along the pixel rows:
-    rms 0.0740 -> 0.0406 px, coverage 0.665 -> 0.793, within 2 px of a crossing band 0.392
-    -> 0.535, intersections 0.404 -> 0.187 px; along the grid, the default: 0.0648 ->
-    0.0394 px, 0.746 -> 0.811, 0.414 -> 0.534, 0.343 -> 0.180 px)."""
+    rms 0.0733 -> 0.0412 px, coverage 0.718 -> 0.814, within 2 px of a crossing band 0.423
+    -> 0.547, intersections 0.404 -> 0.187 px; along the grid, the default: 0.0642 ->
+    0.0397 px, 0.770 -> 0.825, 0.425 -> 0.542, 0.343 -> 0.180 px. Before short unconfirmed
+    lines were kept, ``min_checked_length`` 0.5, the row lost more: coverage 0.665 -> 0.793
+    and 0.746 -> 0.811)."""
     g, w, truth = oblique_view
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -1420,9 +1423,9 @@ def test_balanced_fit_line_measures_an_oblique_view(pattern, oblique_view, obliq
                                       pattern)
     grid = evaluate_detection(oblique_result, truth, pattern)
     assert grid["rms_px"] < 0.65 * grid_row["rms_px"], (grid_row, grid)
-    assert grid["coverage"] > grid_row["coverage"] + 0.05, (grid_row, grid)
+    assert grid["coverage"] > grid_row["coverage"] + 0.04, (grid_row, grid)
     assert ev["rms_px"] < 0.65 * row["rms_px"], (row, ev)
-    assert ev["coverage"] > row["coverage"] + 0.1, (row, ev)
+    assert ev["coverage"] > row["coverage"] + 0.08, (row, ev)
     assert ev["coverage_corner"] > row["coverage_corner"] + 0.1, (row, ev)
     assert ev["intersection_rms_px"] < 0.6 * row["intersection_rms_px"], (row, ev)
     assert ev["label_rate"] >= 0.995 and ev["wrong_lines_over_20px"] == 0, ev
