@@ -1394,9 +1394,9 @@ def test_family_fit_labels_the_pieces_of_an_oblique_view(pattern, oblique_view, 
     """The horizontal pieces that the colour windows leave unlabelled between labelled ones
     take their bands from the family's own coordinate map (measured, both read along the
     pixel rows: coverage 0.788 -> 0.814, labels 100 %, no wrong line, rms 0.041 -> 0.041 px;
-    with ``min_checked_length`` 0.5 0.772 -> 0.793, earlier 0.748 -> 0.769, and with the row fit line, ``fit_line="row"``: 0.572 -> 0.606,
-    before ``oblique``: 0.450 -> 0.504; along the grid the windows leave none: 0.825 with
-    and without it)."""
+    with ``min_checked_length`` 0.5: 0.772 -> 0.793, earlier 0.748 -> 0.769, and with the
+    row fit line, ``fit_line="row"``: 0.572 -> 0.606, before ``oblique``: 0.450 -> 0.504;
+    along the grid the windows leave none: 0.825 with and without it)."""
     g, w, truth = oblique_view
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
