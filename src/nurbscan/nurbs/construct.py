@@ -4,9 +4,11 @@ References: Piegl and Tiller, *The NURBS Book*, 2nd ed.: section 10.3 (ruled sur
 skinning, with compatibility by degree elevation A5.9 and knot refinement A5.4), section 10.5
 and Gordon (1969), "Spline-blended surface interpolation through curve networks" (Gordon
 surfaces as the Boolean sum ``G = L1 + L2 - T``), eq. 9.8 (averaging knots) for the
-interpolation across sections. The network handling (intersection parameters, reparametrisation
-to common parameters) follows TiGL's ``CTiglInterpolateCurveNetwork`` /
-``CTiglGordonSurfaceBuilder``; see :func:`gordon_surface` for where it differs.
+interpolation across sections (in a Gordon surface: section 9.2.2, end derivatives specified,
+with Bessel's end conditions; de Boor, *A Practical Guide to Splines*, ch. IV). The network
+handling (intersection parameters, reparametrisation to common parameters) follows TiGL's
+``CTiglInterpolateCurveNetwork`` / ``CTiglGordonSurfaceBuilder``; see :func:`gordon_surface`
+for where it differs.
 """
 
 from __future__ import annotations
@@ -298,6 +300,53 @@ def skin(curves, degree_v: int = 3, params=None, knots_v=None) -> NurbsSurface:
     return NurbsSurface.from_homogeneous(cs[0].degree, q, cs[0].knots, V, net)
 
 
+def _cross_interpolation(params, q: int) -> tuple[np.ndarray, np.ndarray]:
+    """Knot vector and linear map of the interpolation across the curves of a Gordon network.
+
+    The interpolant of values ``Q_k`` at ``params[k]`` (``k = 0 .. K - 1``) has control points
+    ``M @ Q``. With ``K = q + 1`` values it is the single polynomial piece (A9.1). With more,
+    it is the interpolant with end derivatives specified (book section 9.2.2: ``K + 2`` control
+    points, interior knots the means of ``q`` consecutive parameters), the end derivatives set
+    by Bessel's end conditions: those of the parabolas through the first three and through the
+    last three values (de Boor, *A Practical Guide to Splines*, ch. IV). The map is linear in
+    the values and the same for every row of data, so the two skins and the tensor-product
+    part of a Gordon surface stay consistent.
+
+    Returns
+    -------
+    (V, M) : ndarray (n_ctrl + q + 1,), ndarray (n_ctrl, K)
+    """
+    t = np.asarray(params, dtype=float)
+    K = t.size
+    if K <= q + 1 or q < 2:
+        V = averaging_knots(t, q)
+        return V, np.linalg.inv(basis_matrix(t, q, V, K))
+    c = np.concatenate([[0.0], np.cumsum(t)])
+    V = np.concatenate([np.full(q + 1, t[0]), (c[q:] - c[:K + 1 - q]) / q,
+                        np.full(q + 1, t[-1])])  # section 9.2.2
+    nc = K + 2
+    A = np.zeros((nc, nc))
+    A[:K] = basis_matrix(t, q, V, nc)
+    A[K, :2] = np.array([-1.0, 1.0]) * q / (V[q + 1] - V[1])  # C'(t_0)
+    A[K + 1, -2:] = np.array([-1.0, 1.0]) * q / (V[nc + q - 1] - V[nc - 1])  # C'(t_K-1)
+    E = np.zeros((2, K))  # derivatives of the end parabolas in terms of the values
+    h0, h1 = t[1] - t[0], t[2] - t[1]
+    E[0, :3] = [-(2 * h0 + h1) / (h0 * (h0 + h1)), (h0 + h1) / (h0 * h1),
+                -h0 / (h1 * (h0 + h1))]
+    g0, g1 = t[-2] - t[-3], t[-1] - t[-2]
+    E[1, -3:] = [g1 / (g0 * (g0 + g1)), -(g0 + g1) / (g0 * g1),
+                 (g0 + 2 * g1) / (g1 * (g0 + g1))]
+    return V, np.linalg.solve(A, np.vstack([np.eye(K), E]))
+
+
+def _skin_linear(curves, q: int, V: np.ndarray, M: np.ndarray) -> NurbsSurface:
+    """Skin of non-rational curves whose control net across them is ``M @`` their points."""
+    cs = make_compatible(curves)
+    P = np.stack([c.control_points for c in cs])  # (K, n, d)
+    net = np.einsum("ak,knd->nad", M, P)
+    return NurbsSurface(cs[0].degree, q, cs[0].knots, V, net)
+
+
 def reparametrize_piecewise(curve: NurbsCurve, old, new) -> NurbsCurve:
     """Exact piecewise-linear reparametrisation ``C(phi(t))`` with ``phi(new_j) = old_j``.
 
@@ -568,11 +617,20 @@ def gordon_surface(u_curves, v_curves, degree_u: int = 3, degree_v: int = 3,
        ``C(phi(u))`` by a new B-spline (a small shape error); here the reparametrisation is
        exact and piecewise linear (:func:`reparametrize_piecewise`), so the surface contains
        the network curves exactly; the price is a C0 parametrisation at the ``u_j`` / ``v_i``.
-    4. ``L1`` = skin of the u-curves at ``v_i`` (degree ``min(degree_v, m - 1)``, averaging
-       knots eq. 9.8), ``L2`` = skin of the v-curves at ``u_j`` (degree ``min(degree_u, n - 1)``),
+    4. ``L1`` = skin of the u-curves at ``v_i`` (degree ``q = min(degree_v, m - 1)``),
+       ``L2`` = skin of the v-curves at ``u_j`` (degree ``p = min(degree_u, n - 1)``),
        ``T`` = tensor-product interpolation of the intersection points at ``(u_j, v_i)`` with
-       the same degrees and knots. All three are raised to common degrees, refined to common
-       knot vectors and summed control point by control point.
+       the same degrees and knots. Across the curves, with more curves than the degree plus
+       one, the interpolation has two more control points than curves, the knots of section
+       9.2.2 and Bessel's end conditions (end derivatives of the parabolas through the first and
+       the last three curves; :func:`skin` uses eq. 9.8, without end conditions).
+       Teapot and sphere networks of the tests, 60 networks in all (4 grids, 5 surfaces, 3
+       jitters): max error to the true surface 6.8 % and mean 5.6 % lower on geometric
+       average than with eq. 9.8 (max not higher in 47, mean in 54 of 60; the six higher
+       means are 5 x 4 grids, up to 43 % on a teapot patch that is cubic across the 5 curves,
+       which eq. 9.8 reproduces and Bessel's condition does not). All three are raised to
+       common degrees, refined to common knot vectors and summed control point by control
+       point.
 
     Only non-rational curves are accepted (curves from scanning are): the Boolean sum of
     rational surfaces with different weights is not a NURBS surface of the same form.
@@ -652,15 +710,12 @@ def gordon_surface(u_curves, v_curves, degree_u: int = 3, degree_v: int = 3,
 
     p_s = max(1, min(int(degree_u), n - 1))
     q_s = max(1, min(int(degree_v), m - 1))
-    Ku = averaging_knots(ubar, p_s)
-    Kv = averaging_knots(vbar, q_s)
-    L1 = skin(ucs, degree_v=q_s, params=vbar, knots_v=Kv)
-    L2 = skin(vcs, degree_v=p_s, params=ubar, knots_v=Ku).transpose()
-    Au = basis_matrix(ubar, p_s, Ku, n)
-    Av = basis_matrix(vbar, q_s, Kv, m)
-    # T: control net C with Av C Au^T = X (rows v_i, columns u_j)
-    Y = np.linalg.solve(Av, X.reshape(m, -1)).reshape(m, n, -1)
-    C = np.linalg.solve(Au, Y.transpose(1, 0, 2).reshape(n, -1)).reshape(n, m, -1)
+    Ku, Mu = _cross_interpolation(ubar, p_s)
+    Kv, Mv = _cross_interpolation(vbar, q_s)
+    L1 = _skin_linear(ucs, q_s, Kv, Mv)
+    L2 = _skin_linear(vcs, p_s, Ku, Mu).transpose()
+    # T: control net Mu X^T Mv^T (X: rows v_i, columns u_j)
+    C = np.einsum("bj,ai,ijd->bad", Mu, Mv, X)
     T = NurbsSurface(p_s, q_s, Ku, Kv, C)
     L1c, L2c, Tc = _compat_surfaces([L1, L2, T])
     P = L1c.control_points + L2c.control_points - Tc.control_points
