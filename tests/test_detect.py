@@ -885,18 +885,43 @@ def test_reading_along_the_grid_decodes_a_sheared_view(pattern, sheared_view):
     """Vertical band normals at 20 degrees, horizontal at 60: the pixel columns leave each
     grid cell after one horizontal band, so few colour windows are read along them; along
     the vertical edges (``read_along="grid"``) they are (measured: coverage 0.722 -> 0.843,
-    RMS 0.038 -> 0.040 px, labels 100 %, no wrong line; 0.717 -> 0.784 while short
-    unconfirmed lines were dropped, ``min_checked_length`` 0.5)."""
+    RMS 0.038 -> 0.040 px, labels 100 %, no wrong line; 0.717 -> 0.842 with
+    ``min_checked_length`` 0.5)."""
     g, w, truth = sheared_view
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         r_pix = detect_grid(g, pattern, w, read_along="pixels")
         r = detect_grid(g, pattern, w)
-    assert_more_labelled(r_pix, r, truth, pattern, gain=0.05)
+    assert_more_labelled(r_pix, r, truth, pattern, gain=0.1)
     ev = evaluate_detection(r, truth, pattern)
     assert ev["rms_px"] < 0.05 and ev["intersection_rms_px"] < 0.25, ev
     with pytest.raises(NurbscanError, match="read_along"):
         detect_grid(g, pattern, w, read_along="columns")
+
+
+def test_short_unconfirmed_lines_are_dropped_only_on_request(pattern, sheared_view):
+    """``min_checked_length`` 0.5 drops the lines shorter than half a pitch that no
+    consistent grid intersection confirms; the default (0) keeps them, correctly labelled
+    (measured on the sheared view: 359 -> 429 lines, 0 -> 11 lines of under 12 points
+    without an intersection in the result, coverage 0.842 -> 0.843, RMS 0.0394 -> 0.0395
+    px, labels 100 %; on the 7.1 MP teapot view coverage 0.7841 -> 0.7942)."""
+    g, w, truth = sheared_view
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        checked = detect_grid(g, pattern, w, min_checked_length=0.5)
+        kept = detect_grid(g, pattern, w)
+
+    def short_unconfirmed(r):
+        crossed = np.zeros(r.nlines, bool)
+        crossed[r.cross_line.ravel()] = True
+        return int(np.sum((r.stop - r.start < 12) & ~crossed))
+
+    assert short_unconfirmed(checked) == 0 and short_unconfirmed(kept) >= 5
+    assert kept.nlines > checked.nlines + 30
+    ev_c, ev_k = (evaluate_detection(r, truth, pattern) for r in (checked, kept))
+    assert ev_k["coverage"] >= ev_c["coverage"] - 0.002, (ev_c, ev_k)
+    assert ev_k["label_rate"] >= 0.995 and ev_k["wrong_lines_over_20px"] == 0, ev_k
+    assert ev_k["rms_px"] < 0.05, ev_k
 
 
 def test_row_support_interpolates_extrapolates_and_flags_lone_points():
