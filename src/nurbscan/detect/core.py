@@ -1478,7 +1478,12 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         pitches (:func:`family_coordinates`; none where their RMS residual exceeds
         ``fit_rms`` projector px or where it would extrapolate), the candidate edge must
         agree with the edge count of the point's row (column) towards its labelled
-        neighbours (:func:`row_consistent`), and a line takes the band its points vote for
+        neighbours (:func:`row_consistent`) or, with ``read_along`` "grid", of its grid run
+        (a pixel column through slanted bands of the other family misses the edges hidden
+        in them; 7.1 MP teapot view 0 at 1x: coverage 0.7942 -> 0.7980, RMS 0.0437 ->
+        0.0439 px; 0x 0.8097 -> 0.8137; 3x 0.7100 -> 0.7153, 0.0716 -> 0.0740 px; demo
+        scan views 0-7 0.8132 -> 0.8155, RMS 0.0421 -> 0.0424 px, worst view 0.0449 ->
+        0.0456 px, no wrong line), and a line takes the band its points vote for
         within ``fit_tol`` pitches, with the points that fit no edge voting against
         (:func:`epipolar_labels` with ``dissent``) and its colour not contradicting it. 0
         disables (``nurbscan reconstruct`` does: with the rig the epipolar prediction labels
@@ -1704,6 +1709,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     del gxo, gyo
     # band crossings along rows (vertical bands) and columns (horizontal bands)
     parts = []
+    grid_rows = []  # the grid runs in row_order's form, for the family fit's count check
     # read along the other family's edges (where the bands are resolved and the families
     # told apart): the points' `across` vectors point along them
     along_grid = read_along == "grid" and fine and pts.across is not None
@@ -1728,6 +1734,9 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
             step[:, d] = 1.0
             wscale = np.ones(len(sel))
         o, st = band_crossings(across, run, cls[sel] % 2, ratio, tol=width_tol)
+        if along_grid and len(sel) >= 3:
+            og = np.lexsort((across, run))
+            grid_rows.append((d, sel[og], run[og], across[og]))
         a = across[o]
         mid = 0.5 * (a[st] + a[st + 1])
         qm = base[o[st]] + (mid - a[st])[:, None] * step[o[st]]
@@ -1839,7 +1848,13 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
         def fit_round(lab):
             pred = family_coordinates(lab, px, py, cls, line, pattern, fit_r, max_rms=fit_rms,
                                       margin=reach_margin)
-            pred = np.where(row_consistent(lab, line, cls, pred, pattern, rows), pred, np.nan)
+            # the edge count agrees along the pixel row (column) or along the grid run: a
+            # pixel column through the slanted bands of the other family misses the edges
+            # hidden in them (the bottom of the teapot), the grid run does not
+            ok = row_consistent(lab, line, cls, pred, pattern, rows)
+            if grid_rows:
+                ok |= row_consistent(lab, line, cls, pred, pattern, grid_rows)
+            pred = np.where(ok, pred, np.nan)
             return epipolar_labels(lab, pred, cls, line, lcode_all, pattern, tol=fit_tol,
                                    min_votes=min_votes, min_agreement=min_agreement,
                                    dissent=True)
