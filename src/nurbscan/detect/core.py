@@ -1735,8 +1735,7 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
             wscale = np.ones(len(sel))
         o, st = band_crossings(across, run, cls[sel] % 2, ratio, tol=width_tol)
         if along_grid and len(sel) >= 3:
-            og = np.lexsort((across, run))
-            grid_rows.append((d, sel[og], run[og], across[og]))
+            grid_rows.append((d, sel[o], run[o], across[o]))  # o: by (run, across)
         a = across[o]
         mid = 0.5 * (a[st] + a[st + 1])
         qm = base[o[st]] + (mid - a[st])[:, None] * step[o[st]]
