@@ -87,6 +87,48 @@ def test_accuracy_labels_coverage_on_warped_view(pattern, view, result):
     assert ev["intersection_rms_px"] < 0.15, ev
 
 
+def test_true_edges_and_point_truth_on_a_sheared_plane(pattern):
+    """On the plane proj_x = x / 2 + y / 2 + ox, proj_y = y / 2 + oy every band is 12 camera
+    px wide along the pixel rows and columns (6 projector px at 0.5 per px); the true edge
+    samples lie on the lines x = 2 (c - ox) - y and y = 2 (c - oy); a point moved by dx
+    along a row off a vertical-band edge is dx / sqrt(2) from it, one moved by dy along a
+    column off a horizontal-band edge dy from it, and both keep that edge's label."""
+    from nurbscan.detect.evaluate import point_truth, true_edges
+
+    h, w = 240, 320
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    ox, oy = 300.3, 200.7
+    truth = {"proj_x": ox + xx / 2 + yy / 2, "proj_y": oy + yy / 2,
+             "lit": np.ones((h, w), bool), "surface_id": np.zeros((h, w), np.int32)}
+    te = true_edges(truth, pattern)
+    v = te["direction"] == 0
+    assert v.sum() > 1000 and (~v).sum() > 1000
+    np.testing.assert_allclose(te["band_px"], 12.0, rtol=1e-9)
+    c_v = pattern.vertical_edges[te["band"][v], te["edge"][v]]
+    np.testing.assert_allclose(te["x"][v], 2 * (c_v - ox) - te["y"][v], atol=1e-9)
+    c_h = pattern.horizontal_edges[te["band"][~v], te["edge"][~v]]
+    np.testing.assert_allclose(te["y"][~v], 2 * (c_h - oy), atol=1e-9)
+    # visible only: the other coordinate outside the other direction's bands
+    assert np.all(pattern.stripe_field(oy + te["y"][v] / 2, "horizontal") < 0)
+    inner = (te["x"] > 3) & (te["x"] < w - 4) & (te["y"] > 3) & (te["y"] < h - 4)
+    shift = 0.3
+    x = np.where(v, te["x"] + shift, te["x"])[inner]
+    y = np.where(v, te["y"], te["y"] + shift)[inner]
+    pt = point_truth(x, y, te["direction"][inner], truth, pattern)
+    assert pt["measured"].all()
+    assert np.array_equal(pt["band"], te["band"][inner])
+    assert np.array_equal(pt["edge"], te["edge"][inner])
+    want = np.where(v[inner], shift / np.sqrt(2), shift)
+    np.testing.assert_allclose(pt["error_px"], want, atol=1e-9)
+    # off the image's border ring or off the lit surface: not measured
+    lit = truth["lit"].copy()
+    lit[:, 150:] = False
+    off = point_truth(np.array([0.5, 100.0, 200.0]), np.array([50.0, 50.0, 50.0]),
+                      np.array([0, 0, 0]), dict(truth, lit=lit), pattern)
+    assert off["measured"].tolist() == [False, True, False]
+    assert np.isnan(off["error_px"][[0, 2]]).all() and off["band"][0] == -1
+
+
 def test_coverage_apart_near_the_crossing_bands(pattern):
     """A sheared plane (proj_x = x / 2 + y / 2, proj_y = y / 2 + const) and a 'detection' of
     every true edge sample except those within 2 camera px, along the edge, of a crossing

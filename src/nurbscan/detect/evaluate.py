@@ -5,6 +5,12 @@ interpolated bilinearly at each detected point p; the true edge of projector coo
 is the level set F = c, and to first order the distance from p to it, in camera px, is
 ``(F(p) - c) / |grad F(p)|`` (gradient by central differences of the interpolant, +-0.5 px).
 Only points whose four surrounding pixels lie on one lit surface are measured.
+
+:func:`evaluate_detection` gives the figures of a detection; its parts serve other
+measurements too (``benchmarks/bench_detect_bound.py``): :func:`point_truth` (the true edge
+nearest each point and the distance to it), :func:`true_edges` (the true visible edges,
+sampled once per pixel row or column) and :func:`edges_found` (which of those a detection
+covers).
 """
 
 from __future__ import annotations
@@ -88,6 +94,133 @@ def _corner_distance(ff, oo, cc, r, c, ov, pattern, other: str) -> np.ndarray:
         return np.where(rate > 0, dc / rate, np.inf)
 
 
+def true_edges(truth, pattern) -> dict[str, np.ndarray]:
+    """The true, lit, visible band edges of a view, sampled once per pixel row or column.
+
+    A vertical-band edge of projector coordinate c is sampled where it crosses a pixel row:
+    between two horizontally adjacent pixel centres of one good cell (four lit pixels of one
+    surface) whose ``proj_x`` lie on either side of c, at the linear interpolation of the
+    crossing; a horizontal-band edge likewise along pixel columns with ``proj_y``. A sample is
+    visible where the other coordinate lies outside every band of the other direction (inside
+    a crossing band the edge has no contrast).
+
+    Parameters
+    ----------
+    truth : path of a truth ``.npz`` or mapping with ``proj_x``, ``proj_y`` (H, W) projector px,
+        ``lit`` (H, W) and ``surface_id`` (H, W)
+    pattern : nurbscan.pattern.Pattern
+
+    Returns
+    -------
+    dict of (M,) arrays
+        ``x``, ``y`` (camera px), ``direction`` (0 vertical-band edge, 1 horizontal), ``band``
+        and ``edge`` (0 rising, 1 falling), ``corner_px`` (camera px along the edge to the
+        nearest band of the other direction, :func:`_corner_distance`) and ``band_px`` (the
+        band's width across the edge along the pixel row or column, camera px: the pattern's
+        band width over the local rate of the coordinate).
+    """
+    t = _load_truth(truth)
+    cells = _good_cells(t)
+    fx0 = np.nan_to_num(np.asarray(t["proj_x"], np.float64))
+    fy0 = np.nan_to_num(np.asarray(t["proj_y"], np.float64))
+    parts = []
+    for dd, f, edges, other, oname in ((0, fx0, pattern.vertical_edges, fy0, "horizontal"),
+                                       (1, fy0, pattern.horizontal_edges, fx0, "vertical")):
+        ff = f if dd == 0 else f.T
+        oo = other if dd == 0 else other.T
+        cc = cells if dd == 0 else cells.T
+        flat = np.sort(edges.reshape(-1))
+        e0 = np.searchsorted(flat, ff[:, :-1])
+        e1 = np.searchsorted(flat, ff[:, 1:])
+        # the pair (i, i + 1) along the row inside one good cell
+        r, c = np.nonzero(cc[:, :-1] & (np.abs(e0 - e1) == 1))
+        ce = flat[np.minimum(e0[r, c], e1[r, c])]
+        a, b = ff[r, c], ff[r, c + 1]
+        sub = c + (ce - a) / (b - a)
+        ov = oo[r, c] + (oo[r, c + 1] - oo[r, c]) * (sub - c)
+        vis = pattern.stripe_field(ov, oname) < 0
+        r, c, sub, ce, ov, rate = r[vis], c[vis], sub[vis], ce[vis], ov[vis], np.abs(b - a)[vis]
+        bi = _nearest_edge(edges, ce)
+        rf = r.astype(np.float64)
+        parts.append({"x": sub if dd == 0 else rf, "y": rf if dd == 0 else sub,
+                      "direction": np.full(len(r), dd, np.int64), "band": bi // 2,
+                      "edge": bi % 2,
+                      "corner_px": _corner_distance(ff, oo, cc, r, c, ov, pattern, oname),
+                      "band_px": pattern.band / np.maximum(rate, 1e-12)})
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def edges_found(result: DetectionResult, edges: Mapping[str, np.ndarray],
+                match_radius: float = 1.0) -> np.ndarray:
+    """(M,) bool: a detected point of the same direction, band and edge lies within
+    ``match_radius`` camera px of each true edge sample (``edges``: :func:`true_edges`)."""
+    from scipy.spatial import cKDTree
+
+    w, h = result.image_size
+    span = max(w, h) + 10
+    hit = np.zeros(len(edges["x"]), bool)
+    fam_det = result.point_direction * 100000 + result.point_band * 2 + result.point_edge
+    fam_true = edges["direction"] * 100000 + edges["band"] * 2 + edges["edge"]
+    for dd in (0, 1):
+        k = result.point_direction == dd
+        q = edges["direction"] == dd
+        if not k.any() or not q.any():
+            continue
+        det = np.c_[result.x[k] + fam_det[k] * span, result.y[k]]
+        dist, _ = cKDTree(det).query(np.c_[edges["x"][q] + fam_true[q] * span, edges["y"][q]],
+                                     distance_upper_bound=match_radius)
+        hit[q] = np.isfinite(dist)
+    return hit
+
+
+def point_truth(x: np.ndarray, y: np.ndarray, direction: np.ndarray, truth, pattern
+                ) -> dict[str, np.ndarray]:
+    """The true edge nearest each edge point, and the point's distance to it.
+
+    The truth field F (``proj_x`` for ``direction`` 0, ``proj_y`` for 1) is interpolated
+    bilinearly at the point; the nearest true edge is the pattern edge of coordinate c nearest
+    F, and the distance to it is ``(F - c) / |grad F|`` camera px (module docstring).
+
+    Parameters
+    ----------
+    x, y : (N,) float
+        Points, camera px.
+    direction : (N,) int
+        0 for vertical-band edges, 1 for horizontal ones.
+    truth, pattern
+        As in :func:`true_edges`.
+
+    Returns
+    -------
+    dict of (N,) arrays
+        ``measured`` (bool: the point's surrounding pixels lie on one lit surface, at least
+        1 px inside the image), ``band`` and ``edge`` of the nearest true edge and
+        ``error_px``, the signed distance to it (camera px); -1 and NaN where not measured.
+    """
+    t = _load_truth(truth)
+    cells = _good_cells(t)
+    h, w = cells.shape
+    x = np.asarray(x, np.float64)
+    y = np.asarray(y, np.float64)
+    d = np.asarray(direction)
+    xi = np.clip(np.floor(x).astype(np.int64), 0, w - 1)
+    yi = np.clip(np.floor(y).astype(np.int64), 0, h - 1)
+    xl = np.clip(np.floor(x - 0.5).astype(np.int64), 0, w - 1)
+    yl = np.clip(np.floor(y - 0.5).astype(np.int64), 0, h - 1)
+    meas = cells[yi, xi] & cells[yl, xl] & (x > 1) & (y > 1) & (x < w - 2) & (y < h - 2)
+    band = np.full(len(x), -1, np.int64)
+    edge = np.full(len(x), -1, np.int64)
+    err = np.full(len(x), np.nan)
+    for dd, name, edges in ((0, "proj_x", pattern.vertical_edges),
+                            (1, "proj_y", pattern.horizontal_edges)):
+        k = np.nonzero(meas & (d == dd))[0]
+        v, gx, gy = _field_at(np.nan_to_num(np.asarray(t[name], np.float64)), x[k], y[k])
+        ne = _nearest_edge(edges, v)
+        band[k], edge[k] = ne // 2, ne % 2
+        err[k] = (v - edges.reshape(-1)[ne]) / np.maximum(np.hypot(gx, gy), 1e-12)
+    return {"measured": meas, "band": band, "edge": edge, "error_px": err}
+
+
 def evaluate_detection(result: DetectionResult, truth, pattern, match_radius: float = 1.0,
                        corner_px: float = 2.0) -> dict[str, float]:
     """Accuracy, labelling and coverage of a detection against the truth of its view.
@@ -126,29 +259,14 @@ def evaluate_detection(result: DetectionResult, truth, pattern, match_radius: fl
     if tuple(result.image_size) != (w, h):
         raise NurbscanError(f"truth: size {w}x{h} does not match the detection's "
                             f"{result.image_size[0]}x{result.image_size[1]}")
-    cells = _good_cells(t)
-    fx0 = np.nan_to_num(fxf)
-    fy0 = np.nan_to_num(fyf)
     out: dict[str, float] = {}
     # --- edge points
     x, y = result.x, result.y
-    d = result.point_direction
-    xi = np.clip(np.floor(x).astype(np.int64), 0, w - 1)
-    yi = np.clip(np.floor(y).astype(np.int64), 0, h - 1)
-    xl = np.clip(np.floor(x - 0.5).astype(np.int64), 0, w - 1)
-    yl = np.clip(np.floor(y - 0.5).astype(np.int64), 0, h - 1)
-    meas = cells[yi, xi] & cells[yl, xl] & (x > 1) & (y > 1) & (x < w - 2) & (y < h - 2)
-    dist = np.full(len(x), np.nan)
-    correct = np.zeros(len(x), bool)
-    for dd, f, edges in ((0, fx0, pattern.vertical_edges), (1, fy0, pattern.horizontal_edges)):
-        k = np.nonzero(meas & (d == dd))[0]
-        v, gx, gy = _field_at(f, x[k], y[k])
-        c = result.coord[result.line[k]]
-        dist[k] = (v - c) / np.maximum(np.hypot(gx, gy), 1e-12)
-        ne = _nearest_edge(edges, v)
-        correct[k] = (ne // 2 == result.point_band[k]) & (ne % 2 == result.point_edge[k])
-    m = meas
-    ok = m & correct
+    pt = point_truth(x, y, result.point_direction, t, pattern)
+    m, dist = pt["measured"], pt["error_px"]
+    # correct: measured, with the band and edge of the nearest true edge (then ``dist`` is
+    # the distance to the labelled edge)
+    ok = correct = m & (pt["band"] == result.point_band) & (pt["edge"] == result.point_edge)
     out["measured"] = float(m.sum())
     out["label_rate"] = float(correct[m].mean()) if m.any() else float("nan")
     out["rms_px"] = float(np.sqrt(np.mean(dist[ok] ** 2))) if ok.any() else float("nan")
@@ -168,48 +286,11 @@ def evaluate_detection(result: DetectionResult, truth, pattern, match_radius: fl
     else:
         out["wrong_lines"] = out["wrong_lines_over_20px"] = 0.0
     # --- coverage of the true visible edges
-    from scipy.spatial import cKDTree
-
-    span = max(w, h) + 10
-    fam_det = result.point_direction * 100000 + result.point_band * 2 + result.point_edge
-    total = found = n_corner = found_corner = 0
-    for dd, f, edges, other, oname in ((0, fx0, pattern.vertical_edges, fy0, "horizontal"),
-                                       (1, fy0, pattern.horizontal_edges, fx0, "vertical")):
-        ff = f if dd == 0 else f.T
-        oo = other if dd == 0 else other.T
-        cc = (cells if dd == 0 else cells.T)
-        ok_pair = cc.copy()  # pair (i, i+1) along the row inside one good cell row
-        ok_pair[:, :] = cc
-        flat = np.sort(edges.reshape(-1))
-        e0 = np.searchsorted(flat, ff[:, :-1])
-        e1 = np.searchsorted(flat, ff[:, 1:])
-        cross = ok_pair[:, :-1] & (np.abs(e0 - e1) == 1)
-        r, c = np.nonzero(cross)
-        ce = flat[np.minimum(e0[r, c], e1[r, c])]
-        a, b = ff[r, c], ff[r, c + 1]
-        sub = c + (ce - a) / (b - a)
-        # visible: the other coordinate outside every band of the other direction
-        ov = oo[r, c] + (oo[r, c + 1] - oo[r, c]) * (sub - c)
-        vis = pattern.stripe_field(ov, oname) < 0
-        r, c, sub, ce, ov = r[vis], c[vis], sub[vis], ce[vis], ov[vis]
-        near = _corner_distance(ff, oo, cc, r, c, ov, pattern, oname) < corner_px
-        # which (band, edge) is ce
-        bi = _nearest_edge(edges, ce)
-        fam = dd * 100000 + (bi // 2) * 2 + bi % 2
-        total += len(r)
-        n_corner += int(near.sum())
-        if not len(r):
-            continue
-        px_, py_ = (sub, r.astype(np.float64)) if dd == 0 else (r.astype(np.float64), sub)
-        k = result.point_direction == dd
-        if not k.any():
-            continue
-        det = np.c_[result.x[k] + fam_det[k] * span, result.y[k]]
-        q = np.c_[px_ + fam * span, py_]
-        dist_q, _ = cKDTree(det).query(q, distance_upper_bound=match_radius)
-        hit = np.isfinite(dist_q)
-        found += int(np.sum(hit))
-        found_corner += int(np.sum(hit & near))
+    te = true_edges(t, pattern)
+    hit = edges_found(result, te, match_radius)
+    near = te["corner_px"] < corner_px
+    total, found = len(hit), int(hit.sum())
+    n_corner, found_corner = int(near.sum()), int((hit & near).sum())
     out["true"] = float(total)
     out["coverage"] = float(found / total) if total else float("nan")
     out["corner_share"] = float(n_corner / total) if total else float("nan")
@@ -217,6 +298,8 @@ def evaluate_detection(result: DetectionResult, truth, pattern, match_radius: fl
     out["coverage_open"] = (float((found - found_corner) / (total - n_corner))
                             if total > n_corner else float("nan"))
     # --- intersections
+    cells = _good_cells(t)
+    fx0, fy0 = np.nan_to_num(fxf), np.nan_to_num(fyf)
     n = len(result.cam)
     out["intersections"] = float(n)
     if n:
