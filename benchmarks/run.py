@@ -78,6 +78,11 @@ TARGETS = [
     ("detect coverage of the true edges, 7.1 MP view, 1x noise", "detect",
      "noise1 / coverage", ">=", 0.95),
     ("detect edge RMS, 7.1 MP view, 1x noise (px)", "detect", "noise1 / rms_px", "<=", 0.05),
+    ("oracle bound: coverage the edge points allow at RMS 0.05 px, 1x noise "
+     "(bench_detect_bound)", "detect_bound", "noise1_refined_smoothed / coverage_at_rms_0.05",
+     ">=", 0.95),
+    ("oracle bound at zero noise", "detect_bound",
+     "noise0_refined_smoothed / coverage_at_rms_0.05", ">=", 0.95),
 ]
 #: A slope counts as linear within this distance of 1.
 SLOPE_TOL = 0.2
