@@ -103,18 +103,15 @@ def refined_points(pts, nrm, opt, sigma, band, pattern, shape, truth=None):
     from nurbscan.detect import trace_lines
     from nurbscan.detect.edges import refine_by_channels
     from nurbscan.detect.evaluate import point_truth
-    from nurbscan.detect.lines import chain_slope, smooth_chains
+    from nurbscan.detect.lines import chain_normals, smooth_chains
 
     order, line = trace_lines(pts, shape, min_length=opt["min_length"])
     keep = band[order] >= 0  # the chains keep their order
     order, line = order[keep], line[keep]
     x, y, cls = pts.x[order], pts.y[order], pts.cls[order]
     vk = cls < 2
-    slope = chain_slope(np.where(vk, y, x), np.where(vk, x, y), line)
-    nn = np.hypot(1.0, slope)
-    normal = np.where(vk[:, None], np.c_[1.0 / nn, -slope / nn], np.c_[-slope / nn, 1.0 / nn])
-    inv = nrm.inverse if len(nrm.inverse) == 3 else nrm.inverse * 3
-    chn = [c * i for c, i in zip(nrm.channels, inv, strict=True)]
+    normal = chain_normals(x, y, vk, line)
+    chn = nrm.planes()
     colour = np.asarray(pattern.rgb)[np.asarray(pattern.sequence)[band[order]]] > 127
     rx, ry, _ = refine_by_channels(chn, pts.ix[order], pts.iy[order], cls, colour, x, y,
                                    sigma, opt["sigma_along"], normal=normal,

@@ -33,6 +33,7 @@ from .decode import (
 )
 from .edges import detect_edge_points, refine_by_channels
 from .lines import (
+    chain_normals,
     chain_slope,
     fit_lines,
     join_collinear,
@@ -1913,20 +1914,15 @@ def detect_grid(image, pattern, white=None, *, gamma: float = 2.2, sigma: float 
     ldir, ledge = ldir[good], ledge[good]
     if refine:
         # second pass: re-measure each point in its band's clean colour channels
-        inv = nrm.inverse if len(nrm.inverse) == 3 else nrm.inverse * 3
-        chn = [c * i for c, i in zip(nrm.channels, inv, strict=True)]
+        chn = nrm.planes()
         colour = np.asarray(pattern.rgb)[seq[lab[line]]] > 127
         vk = cls[keep] < 2
         normal = None
         if fine:
-            # a point is judged clean along its chain's normal: (1, -slope) for vertical
-            # edges (x = c + slope y), (-slope, 1) for horizontal ones, so that edges tilted
-            # past 14 degrees are re-measured too (narrow bands keep the x / y rule: there
-            # the extra points cost accuracy, 640 x 480 calibration views)
-            slope = chain_slope(*_along_across(px, py, vk), line)
-            nn = np.hypot(1.0, slope)
-            normal = np.where(vk[:, None], np.c_[1.0 / nn, -slope / nn],
-                              np.c_[-slope / nn, 1.0 / nn])
+            # a point is judged clean along its chain's normal, so that edges tilted past 14
+            # degrees are re-measured too (narrow bands keep the x / y rule: there the extra
+            # points cost accuracy, 640 x 480 calibration views)
+            normal = chain_normals(px, py, vk, line)
         px, py, done = refine_by_channels(chn, ix[keep], iy[keep], cls[keep], colour, px, py,
                                           sigma, sigma_along, normal=normal,
                                           across=op[keep], slope=fit_sl[keep])

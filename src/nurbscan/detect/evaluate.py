@@ -157,20 +157,15 @@ def edges_found(result: DetectionResult, edges: Mapping[str, np.ndarray],
     from scipy.spatial import cKDTree
 
     w, h = result.image_size
-    span = max(w, h) + 10
-    hit = np.zeros(len(edges["x"]), bool)
+    span = max(w, h) + 10  # one family's points lie apart from every other's
+    if not len(result.x) or not len(edges["x"]):
+        return np.zeros(len(edges["x"]), bool)
     fam_det = result.point_direction * 100000 + result.point_band * 2 + result.point_edge
     fam_true = edges["direction"] * 100000 + edges["band"] * 2 + edges["edge"]
-    for dd in (0, 1):
-        k = result.point_direction == dd
-        q = edges["direction"] == dd
-        if not k.any() or not q.any():
-            continue
-        det = np.c_[result.x[k] + fam_det[k] * span, result.y[k]]
-        dist, _ = cKDTree(det).query(np.c_[edges["x"][q] + fam_true[q] * span, edges["y"][q]],
-                                     distance_upper_bound=match_radius)
-        hit[q] = np.isfinite(dist)
-    return hit
+    det = np.c_[result.x + fam_det * span, result.y]
+    dist, _ = cKDTree(det).query(np.c_[edges["x"] + fam_true * span, edges["y"]],
+                                 distance_upper_bound=match_radius)
+    return np.isfinite(dist)
 
 
 def point_truth(x: np.ndarray, y: np.ndarray, direction: np.ndarray, truth, pattern

@@ -170,6 +170,20 @@ def chain_slope(along: np.ndarray, across: np.ndarray, line: np.ndarray, reach: 
     return np.where((sw >= 3) & np.isfinite(c1), c1, 0.0)
 
 
+def chain_normals(x: np.ndarray, y: np.ndarray, vertical: np.ndarray, line: np.ndarray
+                  ) -> np.ndarray:
+    """Unit normal (M, 2) of each chain point's edge, from its chain's local slope.
+
+    :func:`chain_slope` gives ``s = dx/dy`` along a vertical-band edge (``x = c + s y``) and
+    ``dy/dx`` along a horizontal one; the normals are ``(1, -s)`` and ``(-s, 1)``, normalised.
+    ``x``, ``y`` (M,) px, ``vertical`` (M,) bool, ``line`` (M,) chain ids, in chain order.
+    """
+    slope = chain_slope(np.where(vertical, y, x), np.where(vertical, x, y), line)
+    nn = np.hypot(1.0, slope)
+    return np.where(np.asarray(vertical)[:, None], np.c_[1.0 / nn, -slope / nn],
+                    np.c_[-slope / nn, 1.0 / nn])
+
+
 def smooth_chains(along: np.ndarray, across: np.ndarray, line: np.ndarray,
                   weight: np.ndarray, reach: int = 3) -> np.ndarray:
     """Across-edge position of each point on its chain's local weighted straight line.

@@ -79,18 +79,24 @@ class Normalised:
     channels: tuple
     inverse: tuple
 
+    def _inverses(self) -> tuple:
+        """The three channels' ``1 / denominator`` planes (one shared plane repeated)."""
+        return self.inverse if len(self.inverse) == 3 else self.inverse * 3
+
     def colour_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Normalised colour (N, 3) at points (x, y) px (bilinear)."""
         from .decode import bilinear
 
-        inv = self.inverse if len(self.inverse) == 3 else self.inverse * 3
         return np.stack([bilinear(c, x, y) * bilinear(i, x, y)
-                         for c, i in zip(self.channels, inv, strict=True)], axis=1)
+                         for c, i in zip(self.channels, self._inverses(), strict=True)], axis=1)
+
+    def planes(self) -> list[np.ndarray]:
+        """The three normalised channels, (H, W) float32 each."""
+        return [c * i for c, i in zip(self.channels, self._inverses(), strict=True)]
 
     def image(self) -> np.ndarray:
         """The full normalised image (H, W, 3) float32 (for inspection; not used inside)."""
-        inv = self.inverse if len(self.inverse) == 3 else self.inverse * 3
-        return np.stack([c * i for c, i in zip(self.channels, inv, strict=True)], axis=2)
+        return np.stack(self.planes(), axis=2)
 
 
 def _planes(image, what: str) -> tuple:
