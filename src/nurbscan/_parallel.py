@@ -5,15 +5,50 @@ on a 2-core machine two processes finish a batch of images sooner than threads i
 are *spawned* (not forked): the parent may hold threads (Embree, BLAS, a writer) that a fork
 would copy half-way. Each job must not depend on the order the jobs run in; results come back
 in the jobs' order, so the outcome does not depend on the number of workers.
+
+Workers die with their parent: each one watches its parent process (:func:`_watch_parent`) and
+exits when the parent is gone, so that a ``reconstruct`` killed with ``kill -9`` leaves no worker
+writing behind it.
 """
 
 from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import threading
+import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any
+
+#: How often a worker looks whether its parent is still there, s.
+PARENT_POLL_S = 0.5
+
+
+def _watch_parent(parent: int) -> None:
+    """Exit this process at once when process ``parent`` is no longer its parent."""
+    while os.getppid() == parent:
+        time.sleep(PARENT_POLL_S)
+    os._exit(1)
+
+
+def _worker_start(parent: int, initializer: Callable[..., None] | None, initargs: tuple
+                  ) -> None:
+    """A worker's first step: watch the parent (daemon thread), then the caller's initializer."""
+    if os.getppid() != parent:
+        os._exit(1)
+    threading.Thread(target=_watch_parent, args=(parent,), daemon=True,
+                     name="nurbscan-parent-watch").start()
+    if initializer is not None:
+        initializer(*initargs)
+
+
+def _pool(workers: int, initializer: Callable[..., None] | None = None, initargs: tuple = ()
+          ) -> ProcessPoolExecutor:
+    """A pool of ``workers`` spawned processes that die with this one."""
+    return ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                               initializer=_worker_start,
+                               initargs=(os.getpid(), initializer, initargs))
 
 
 def worker_count(workers: int | None) -> int:
@@ -57,8 +92,7 @@ def process_map(fn: Callable[[Any], Any], items: Sequence[Any] | Iterable[Any],
             if done is not None:
                 done(i, results[i])
         return results
-    with ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("spawn"),
-                             initializer=initializer, initargs=initargs) as pool:
+    with _pool(n, initializer, initargs) as pool:
         futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
         for f in as_completed(futures):
             i = futures[f]
@@ -78,7 +112,7 @@ def in_background(fn: Callable[..., Any], *args: Any, parallel: bool = True
     if not parallel or worker_count(0) < 2:
         result = fn(*args)
         return lambda: result
-    pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"))
+    pool = _pool(1)
     future = pool.submit(fn, *args)
 
     def wait() -> Any:
