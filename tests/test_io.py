@@ -1,5 +1,7 @@
 """Image reading/writing in every supported format, and atomic output."""
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -94,3 +96,56 @@ def test_atomic_write_leaves_nothing_on_failure(tmp_path):
         raise RuntimeError("boom")
     assert read_json(target) == {"a": 1}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.json"]
+
+
+# ---------------------------------------------------------------- bounded, regular-file reads
+def test_read_image_refuses_a_huge_header_before_decoding(tmp_path):
+    """A PNG whose header claims 32000 x 32000 px is refused from its header (decoding it
+    took 9 GB before failing)."""
+    from nurbscan.io.images import MAX_IMAGE_PIXELS, image_size
+
+    p = tmp_path / "huge.png"
+    cv2.imwrite(str(p), np.zeros((4, 4, 3), np.uint8))
+    data = bytearray(p.read_bytes())
+    data[16:24] = (32000).to_bytes(4, "big") * 2
+    p.write_bytes(bytes(data))
+    assert image_size(p) == (32000, 32000) and 32000 ** 2 > MAX_IMAGE_PIXELS
+    with pytest.raises(NurbscanError, match=r"32000 x 32000 px, more than"):
+        read_image(p)
+
+
+@pytest.mark.parametrize("ext", [".png", ".jpg", ".tif"])
+def test_image_size_from_the_header(tmp_path, ext):
+    from nurbscan.io.images import image_size
+
+    p = tmp_path / f"a{ext}"
+    cv2.imwrite(str(p), np.zeros((37, 53, 3), np.uint8))
+    assert image_size(p) == (53, 37)
+
+
+def test_reads_refuse_what_is_not_a_regular_file(tmp_path):
+    """A named pipe (would hang) and /dev/zero (would fill the memory) are refused at once."""
+    import os
+
+    fifo = tmp_path / "pipe.json"
+    os.mkfifo(fifo)
+    for reader in (read_json, read_image):
+        with pytest.raises(NurbscanError, match="not a regular file"):
+            reader(fifo)
+        if Path("/dev/zero").exists():
+            with pytest.raises(NurbscanError, match="not a regular file"):
+                reader("/dev/zero")
+
+
+def test_read_json_deeply_nested(tmp_path):
+    p = tmp_path / "deep.json"
+    p.write_text("[" * 100000 + "]" * 100000)
+    with pytest.raises(NurbscanError, match="nested too deeply"):
+        read_json(p)
+
+
+def test_atomic_write_onto_a_folder_is_a_one_line_error(tmp_path):
+    (tmp_path / "out.json").mkdir()
+    with pytest.raises(NurbscanError, match=r"out.json: cannot write \(it is a folder\)"):
+        write_json(tmp_path / "out.json", {"a": 1})
+    assert [p.name for p in tmp_path.iterdir()] == ["out.json"]  # no temporary left

@@ -56,6 +56,10 @@ def main(argv: list[str] | None = None) -> int:
     except NurbscanError as exc:
         print(f"nurbscan {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # a file-system failure no stage turned into a NurbscanError
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"nurbscan {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"nurbscan {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -1,6 +1,11 @@
 """Atomic output: write to a temporary file beside the target, then rename.
 
-A failed or interrupted write never leaves a half-written file under the target's name.
+A failed or interrupted write never leaves a half-written file under the target's name. A
+failure of the file system (a read-only folder, a full disk, a target that is a folder) is a
+one-line :class:`~nurbscan.errors.NurbscanError` naming the target.
+
+:func:`read_json` reads only regular files of at most :data:`MAX_JSON_BYTES` (a named pipe would
+hang, ``/dev/zero`` would fill the memory).
 """
 
 from __future__ import annotations
@@ -12,6 +17,16 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+
+#: Largest JSON file read, bytes: nurbscan's own JSON files (scan, rig, model, lines) stay far
+#: below; a larger one is refused before it is read.
+MAX_JSON_BYTES = 512 << 20
+
+
+def _cannot_write(path: Path, exc: OSError):
+    from ..errors import NurbscanError
+
+    return NurbscanError(f"{path}: cannot write ({exc.strerror or exc})")
 
 
 @contextlib.contextmanager
@@ -29,10 +44,17 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     On an exception the temporary file is removed and the target is left untouched.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{path.name}.", suffix=path.suffix if suffix is None else suffix, dir=path.parent
-    )
+    if path.is_dir():
+        from ..errors import NurbscanError
+
+        raise NurbscanError(f"{path}: cannot write (it is a folder)")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{path.name}.", suffix=path.suffix if suffix is None else suffix,
+            dir=path.parent)
+    except OSError as exc:
+        raise _cannot_write(path, exc) from None
     os.close(fd)
     tmp = Path(tmp)
     try:
@@ -41,9 +63,11 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the file the usual mode
         os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
             tmp.unlink()
+        if isinstance(exc, OSError):
+            raise _cannot_write(path, exc) from None
         raise
 
 
@@ -69,9 +93,19 @@ def read_json(path: str | os.PathLike) -> Any:
     from ..errors import NurbscanError
 
     path = Path(path)
+    if not path.exists():
+        raise NurbscanError(f"{path}: file not found")
+    if not path.is_file():
+        raise NurbscanError(f"{path}: not a regular file")
+    size = path.stat().st_size
+    if size > MAX_JSON_BYTES:
+        raise NurbscanError(f"{path}: {size} bytes, more than a JSON file here may have "
+                            f"({MAX_JSON_BYTES})")
     try:
         return json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise NurbscanError(f"{path}: file not found") from None
+    except OSError as exc:
+        raise NurbscanError(f"{path}: cannot read ({exc.strerror or exc})") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise NurbscanError(f"{path}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise NurbscanError(f"{path}: not valid JSON (nested too deeply)") from None

@@ -7,6 +7,9 @@ failure into a one-line :class:`~nurbscan.errors.NurbscanError` naming the file.
 :func:`chroma_subsampled` reads a JPEG's frame header by hand: OpenCV decodes the colour
 to full resolution and does not report the sampling factors, and the one library that does
 (Pillow's ``JpegImagePlugin.get_sampling``) would be a dependency for a few bytes of header.
+:func:`image_size` reads the size from the header of a PNG, JPEG or TIFF file for the same
+reason, so that :func:`read_image` refuses an image larger than :data:`MAX_IMAGE_PIXELS` before
+decoding it (a 32000 x 32000 PNG would take 9 GB before failing).
 """
 
 from __future__ import annotations
@@ -19,6 +22,10 @@ import numpy as np
 
 from ..errors import NurbscanError
 from .atomic import atomic_path
+
+#: Largest image read, pixels: above the largest camera sensors (about 150 Mpx); an image this
+#: size takes 2.4 GB as float RGB.
+MAX_IMAGE_PIXELS = 200_000_000
 
 
 def read_image(path: str | os.PathLike, as_float: bool = True) -> np.ndarray:
@@ -37,8 +44,14 @@ def read_image(path: str | os.PathLike, as_float: bool = True) -> np.ndarray:
         Row 0 is the top of the picture (y down), column 0 the left (x right).
     """
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise NurbscanError(f"{path}: image file not found")
+    if not path.is_file():
+        raise NurbscanError(f"{path}: not a regular file")
+    size = image_size(path)
+    if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
+        raise NurbscanError(f"{path}: {size[0]} x {size[1]} px, more than the "
+                            f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpx an image may have here")
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
     if img is None or img.size == 0:
         raise NurbscanError(f"{path}: not a readable image (corrupt or unsupported format)")
@@ -102,17 +115,34 @@ def chroma_subsampled(path: str | os.PathLike) -> bool:
     -------
     bool
     """
+    seg = _jpeg_frame(_head(path))
+    if seg is None or len(seg) < 6:
+        return False
+    n = seg[5]
+    comps = [seg[6 + 3 * k + 1] for k in range(n) if 6 + 3 * k + 1 < len(seg)]
+    if n < 3 or len(comps) < 3:
+        return False
+    luma = (comps[0] >> 4, comps[0] & 15)
+    return any((c >> 4, c & 15) != luma for c in comps[1:3])
+
+
+def _head(path, limit: int = 1 << 20) -> bytes:
+    """The first ``limit`` bytes of a file (one-line error when it cannot be read)."""
     try:
         with open(path, "rb") as f:
-            if f.read(2) != b"\xff\xd8":  # not a JPEG
-                return False
-            data = b"\xff\xd8" + f.read(1 << 20)  # the frame header precedes the image data
+            return f.read(limit)
     except OSError as exc:
         raise NurbscanError(f"{path}: cannot read ({exc.strerror})") from None
+
+
+def _jpeg_frame(data: bytes) -> bytes | None:
+    """The frame header segment (ITU-T T.81, B.2.2) of a JPEG file's first bytes, or None."""
+    if data[:2] != b"\xff\xd8":  # not a JPEG
+        return None
     i = 2
     while i + 4 <= len(data):
         if data[i] != 0xFF:
-            return False  # not a marker: corrupt header (decoding will report it)
+            return None  # not a marker: corrupt header (decoding will report it)
         marker = data[i + 1]
         if marker == 0xFF:  # fill byte
             i += 1
@@ -122,16 +152,40 @@ def chroma_subsampled(path: str | os.PathLike) -> bool:
             continue
         length = int.from_bytes(data[i + 2:i + 4], "big")
         if marker in _SOF_MARKERS:
-            seg = data[i + 4:i + 2 + length]
-            if len(seg) < 6:
-                return False
-            n = seg[5]
-            comps = [seg[6 + 3 * k + 1] for k in range(n) if 6 + 3 * k + 1 < len(seg)]
-            if n < 3 or len(comps) < 3:
-                return False
-            luma = (comps[0] >> 4, comps[0] & 15)
-            return any((c >> 4, c & 15) != luma for c in comps[1:3])
+            return data[i + 4:i + 2 + length]
         if marker == 0xDA:  # start of scan before any frame header
-            return False
+            return None
         i += 2 + length
-    return False
+    return None
+
+
+def image_size(path: str | os.PathLike) -> tuple[int, int] | None:
+    """(width, height) from a PNG (IHDR), JPEG (frame header) or TIFF (first IFD) header.
+
+    None for another format or a header this does not understand (decoding then decides).
+    """
+    data = _head(path)
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) >= 24:
+        return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    seg = _jpeg_frame(data)
+    if seg is not None:
+        if len(seg) < 5:
+            return None
+        return int.from_bytes(seg[3:5], "big"), int.from_bytes(seg[1:3], "big")
+    if data[:4] in (b"II*\x00", b"MM\x00*") and len(data) >= 8:
+        order = "little" if data[:2] == b"II" else "big"
+        off = int.from_bytes(data[4:8], order)
+        if off + 2 > len(data):
+            return None
+        n = int.from_bytes(data[off:off + 2], order)
+        tags = {}
+        for k in range(n):
+            e = data[off + 2 + 12 * k: off + 14 + 12 * k]
+            if len(e) < 12:
+                break
+            tag, typ = int.from_bytes(e[:2], order), int.from_bytes(e[2:4], order)
+            value = int.from_bytes(e[8:10] if typ == 3 else e[8:12], order)
+            tags[tag] = value
+        if 256 in tags and 257 in tags:
+            return tags[256], tags[257]
+    return None
