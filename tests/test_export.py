@@ -277,6 +277,10 @@ def test_cli_export_all_formats(folders, tmp_path, capsys):
     assert main(["export", str(tmp_path / "nowhere"), "-o", str(tmp_path / "c.igs")]) == 2
     with pytest.raises(NurbscanError, match="step: not supported"):
         export_model(folders, tmp_path / "x.step")
+    # a format that the file's name contradicts (wrote IGES into a .glb with exit 0)
+    assert main(["export", str(folders), "--format", "igs", "-o", str(tmp_path / "m.glb")]) == 2
+    assert "name the file .igs" in capsys.readouterr().err
+    assert not (tmp_path / "m.glb").exists()
 
 
 def test_failed_export_leaves_no_partial_file(folders, tmp_path, monkeypatch):

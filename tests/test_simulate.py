@@ -403,6 +403,11 @@ def test_cli_writes_scan_folder(tmp_path):
         b = read_image(out2 / doc["views"][0][key], as_float=False)
         assert np.array_equal(a, b)
     assert main(["simulate", "sphere", "-o", str(out2), "--noise", "-1"]) == 2
+    # absurd options were ignored or rendered (height 0 ignored, NaN noise, negative seed)
+    for bad in (["--height", "0"], ["--width", "-5"], ["--noise", "nan"], ["--seed", "-1"]):
+        out3 = tmp_path / "scan3"
+        assert main(["simulate", "sphere", "-o", str(out3), "--views", "1", *bad]) == 2, bad
+        assert not out3.exists()
 
 
 def test_scan_in_two_processes_is_the_same_scan(tmp_path):

@@ -41,6 +41,10 @@ def run(args: argparse.Namespace) -> int:
     if fmt not in FORMATS:
         raise NurbscanError(f"{args.output}: unknown format {fmt!r}; give --format, one of "
                             f"{', '.join(FORMATS)}")
+    suffix = args.output.suffix.lstrip(".").lower()
+    if args.format and suffix != fmt and not (fmt == "igs" and suffix == "iges"):
+        raise NurbscanError(f"{args.output}: the name says {suffix or 'no format'!r} but "
+                            f"--format is {fmt!r}; name the file .{fmt}")
     if args.per_span < 1:
         raise NurbscanError(f"--per-span {args.per_span}: must be at least 1")
     kinds = ALL_KINDS if args.kinds == "all" else tuple(

@@ -48,8 +48,14 @@ def run(args: argparse.Namespace) -> int:
     from ..simulate.scan import simulate_scan
     from ..simulate.scenes import make_scene
 
-    if args.noise < 0:
-        raise NurbscanError(f"--noise {args.noise}: must be >= 0")
+    if not args.noise >= 0:  # NaN too
+        raise NurbscanError(f"--noise {args.noise}: must be a number >= 0")
+    if args.seed < 0:
+        raise NurbscanError(f"--seed {args.seed}: must be >= 0")
+    for name in ("width", "height"):
+        v = getattr(args, name)
+        if v is not None and v < 16:
+            raise NurbscanError(f"--{name} {v}: must be at least 16 px")
     if args.views < 1:
         raise NurbscanError(f"--views {args.views}: must be at least 1")
     if args.workers < 0:
@@ -60,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         rig = load_rig(args.rig)
     else:
         rig = default_rig()
-    if args.width or args.height:
+    if args.width is not None or args.height is not None:
         cam = rig.camera
         w = args.width or round(cam.width * args.height / cam.height)
         h = args.height or round(cam.height * args.width / cam.width)
