@@ -6,9 +6,11 @@ x^3 + 4x^2 + 3 over GF(5), or a comma list ``"1,4,0,3"``) and looks windows up; 
 lays them out as vertical and horizontal colour bands with exact edge coordinates, renders the
 projector image and writes / reads its JSON sidecar; :mod:`.lines` holds any grid of straight
 coloured lines on black (:class:`LinePattern`, e.g. a foreign projector's pattern, or nurbscan's
-own via :meth:`Pattern.to_line_pattern`), and :func:`load_pattern` reads either sidecar.
+own via :meth:`Pattern.to_line_pattern`) and :mod:`.from_image` reads a projector image of such
+lines into one (:func:`read_line_pattern`); :func:`load_pattern` reads either sidecar.
 """
 
+from .from_image import read_line_pattern
 from .grid import DEFAULT_COLOURS, Pattern, load_pattern, sidecar_path
 from .lines import LINE_PATTERN_TYPE, LineFamily, LinePattern, window_length
 from .sequence import (
@@ -41,6 +43,7 @@ __all__ = [
     "load_pattern",
     "m_sequence",
     "parse_poly",
+    "read_line_pattern",
     "recurrence_period",
     "sidecar_path",
     "window_keys",
