@@ -1,18 +1,21 @@
-"""Tests for nurbscan.pattern.read_line_pattern."""
+"""Tests for nurbscan.pattern.read_line_pattern and ``nurbscan pattern --from-image``."""
 
 from __future__ import annotations
 
 import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from nurbscan.cli import main
 from nurbscan.errors import NurbscanError
 from nurbscan.io import write_image
-from nurbscan.pattern import Pattern, load_pattern, read_line_pattern
+from nurbscan.pattern import LinePattern, Pattern, load_pattern, read_line_pattern
 
 REAL = Path(os.environ.get("NURBSCAN_REAL_DATA",
                            Path(__file__).resolve().parents[2] / "shared" / "real"))
@@ -258,3 +261,66 @@ def test_unreadable_files(tmp_path):
     with pytest.raises(NurbscanError, match="not a clean projector image") as exc:
         read_line_pattern(jpeg)
     assert str(exc.value).startswith(str(jpeg))
+
+
+# ---------------------------------------------------------------- command line
+
+
+def test_cli_from_image_writes_the_sidecar(tmp_path, capsys):
+    img, vc, *_ = foreign_image()
+    src = tmp_path / "projected.png"
+    write_image(src, img)
+    out = tmp_path / "sub" / "pattern.json"
+    assert main(["pattern", "--from-image", str(src), "-o", str(out)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 1 and str(out) in lines[0] and "horizontal-over" in lines[0]
+    lp = load_pattern(out)
+    assert isinstance(lp, LinePattern) and lp == read_line_pattern(src)
+    assert lp.vertical.centres.tolist() == vc
+    assert sorted(p.name for p in out.parent.iterdir()) == ["pattern.json"]
+
+
+def test_cli_from_image_own_pattern(tmp_path, capsys):
+    png = tmp_path / "own.png"
+    assert main(["pattern", "-o", str(png), "--width", "640", "--height", "480"]) == 0
+    out = tmp_path / "read.json"
+    assert main(["pattern", "--from-image", str(png), "-o", str(out)]) == 0
+    capsys.readouterr()
+    assert load_pattern(out) == load_pattern(png.with_suffix(".json")).to_line_pattern()
+
+
+def test_cli_from_image_bad_input_exit_2(tmp_path, capsys):
+    img, what = _bad_images()[4]
+    src = tmp_path / "repeating.png"
+    write_image(src, img)
+    out = tmp_path / "pattern.json"
+    for args in (["--from-image", str(src), "-o", str(out)],
+                 ["--from-image", str(tmp_path / "missing.png"), "-o", str(out)]):
+        assert main(["pattern", *args]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and args[1] in err[0]
+        assert not out.exists() and list(tmp_path.glob(".pattern.json*")) == []
+    assert "repeats a window" in (main(["pattern", "--from-image", str(src), "-o", str(out)])
+                                  and capsys.readouterr().err)
+    # the sidecar must be .json; generating options do not mix with --from-image
+    good = tmp_path / "good.png"
+    write_image(good, foreign_image()[0])
+    assert main(["pattern", "--from-image", str(good), "-o", str(tmp_path / "p.png")]) == 2
+    assert ".json" in capsys.readouterr().err and not (tmp_path / "p.png").exists()
+    assert main(["pattern", "--from-image", str(good), "-o", str(out), "--pitch", "8"]) == 2
+    assert "--pitch" in capsys.readouterr().err and not out.exists()
+
+
+def test_cli_from_image_as_a_process(tmp_path):
+    src = tmp_path / "projected.png"
+    write_image(src, foreign_image()[0])
+    out = tmp_path / "pattern.json"
+    cmd = [sys.executable, "-m", "nurbscan", "pattern", "--from-image"]
+    ok = subprocess.run([*cmd, str(src), "-o", str(out)], capture_output=True, text=True)
+    assert ok.returncode == 0 and ok.stderr == "" and load_pattern(out).window == 3
+    junk = tmp_path / "junk.png"
+    junk.write_bytes(b"\x89PNG broken")
+    out2 = tmp_path / "other.json"
+    bad = subprocess.run([*cmd, str(junk), "-o", str(out2)], capture_output=True, text=True)
+    assert bad.returncode == 2 and bad.stdout == "" and not out2.exists()
+    assert len(bad.stderr.strip().splitlines()) == 1 and str(junk) in bad.stderr
