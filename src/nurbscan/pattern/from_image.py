@@ -122,14 +122,8 @@ def read_line_pattern(
         "horizontal": _line_colours(rgb, lit, runs["horizontal"], ~col_line, axis=0),
     }
     palette, codes = _palette(np.concatenate([colours["vertical"], colours["horizontal"]]))
-    nv = len(runs["vertical"])
-    code_of = {"vertical": codes[:nv], "horizontal": codes[nv:]}
     crossing = _crossing_rule(rgb, runs, colours)
-    fams = {}
-    for name, r in runs.items():
-        fams[name] = None if len(r) == 0 else LineFamily(
-            name, tuple(code_of[name].tolist()), tuple((r[:, 0] - 0.5).tolist()),
-            tuple((r[:, 1] + 0.5).tolist()))
+    fams = _families(runs, codes)
     window = window_length({k: f.codes for k, f in fams.items() if f is not None},
                            source=source)
     try:
@@ -234,6 +228,15 @@ def _uncut(runs: np.ndarray, size: int) -> np.ndarray:
     keep[0] = not (runs[0, 0] == 0 and widths[0] < widths.max())
     keep[-1] = not (runs[-1, 1] == size - 1 and widths[-1] < widths.max())
     return runs[keep]
+
+
+def _families(runs: dict, codes: np.ndarray) -> dict[str, LineFamily | None]:
+    """A :class:`LineFamily` per direction from its runs (codes: vertical lines first)."""
+    nv = len(runs["vertical"])
+    code_of = {"vertical": codes[:nv], "horizontal": codes[nv:]}
+    return {name: None if len(r) == 0 else LineFamily(
+        name, tuple(code_of[name].tolist()), tuple((r[:, 0] - 0.5).tolist()),
+        tuple((r[:, 1] + 0.5).tolist())) for name, r in runs.items()}
 
 
 def _line_colours(rgb, lit, runs: np.ndarray, free: np.ndarray, axis: int) -> np.ndarray:
