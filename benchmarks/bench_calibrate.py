@@ -65,7 +65,7 @@ def evaluate(scan: Path, held_out: int = HELD_OUT, max_points: int = 4000) -> di
     doc = json.loads((scan / "scan.json").read_text())
     entry = next(p for p in doc["calibration"]["poses"] if p["index"] == held_out)
     det = detect_grid(read_image(scan / entry["grid"]), load_pattern(scan / "pattern.json"),
-                      white=read_image(scan / entry["white"]), **DETECT_OPTIONS)
+                      read_image(scan / entry["white"]), DETECT_OPTIONS)
     f = res.figures
     bias = [f["edge_bias_projector_px"]["x"], f["edge_bias_projector_px"]["y"]]
     R, T = np.array(pose["board_to_rig"]["R"]), np.array(pose["board_to_rig"]["T"])

@@ -94,7 +94,7 @@ def figures(path: Path, jpeg: int | None = None) -> dict[str, float]:
     files at quality ``jpeg`` first, if given, read as ``nurbscan detect`` reads them)."""
     import cv2
 
-    from nurbscan.detect import detect_grid, evaluate_detection
+    from nurbscan.detect import DetectOptions, detect_grid, evaluate_detection
     from nurbscan.io import chroma_subsampled, read_image
 
     z = np.load(path)
@@ -112,7 +112,8 @@ def figures(path: Path, jpeg: int | None = None) -> dict[str, float]:
             subsampled = chroma_subsampled(files[0])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        r = detect_grid(grid, pattern, white, chroma_subsampled=subsampled)
+        r = detect_grid(grid, pattern, white,
+                        DetectOptions().replace(chroma_subsampled=subsampled))
     ev = evaluate_detection(r, truth, pattern)
     ev["lines"] = float(r.nlines)
     return ev

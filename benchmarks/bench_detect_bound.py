@@ -48,7 +48,6 @@ Run ``python benchmarks/bench_detect_bound.py`` (prints JSON).
 
 from __future__ import annotations
 
-import inspect
 import json
 import sys
 import warnings
@@ -66,7 +65,8 @@ T_GRID = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.7, 1.0)
 def edge_points(grid, white, pattern, sigma_per_band: float | None = None):
     """The edge points of ``detect_grid`` before tracing, the filter scale (px), the
     normalised image and ``detect_grid``'s default options."""
-    from nurbscan.detect import detect_edge_points, detect_grid, normalize
+    from nurbscan.detect import DetectOptions, detect_edge_points, normalize
+    from nurbscan.detect.chains import SIGMA_ALONG
     from nurbscan.detect.core import (
         as_float_planes,
         auto_sigma,
@@ -75,7 +75,9 @@ def edge_points(grid, white, pattern, sigma_per_band: float | None = None):
         per_band_for_noise,
     )
 
-    opt = {k: p.default for k, p in inspect.signature(detect_grid).parameters.items()}
+    # the default options, flat (field names are unique across the groups)
+    opt = {k: v for g in DetectOptions().to_dict().values() for k, v in g.items()}
+    opt["sigma_along"] = SIGMA_ALONG
     lin = as_float_planes(grid, gamma=opt["gamma"])
     wl = as_float_planes(white, "white image", gamma=opt["gamma"])
     nrm = normalize(lin, wl, window=opt["window"])

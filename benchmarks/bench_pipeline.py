@@ -130,7 +130,7 @@ def one_view(tmp: Path) -> tuple[dict, dict]:
     from nurbscan.detect import detect_grid
     from nurbscan.pattern import Pattern
     from nurbscan.reconstruct import Model, reconstruct_view
-    from nurbscan.reconstruct.pipeline import add_view, detect_options
+    from nurbscan.reconstruct.pipeline import add_view, reconstruct_detection
     from nurbscan.simulate import RenderSettings, default_rig, make_scene, render_view, scale_camera
 
     rig = default_rig()
@@ -155,7 +155,7 @@ def one_view(tmp: Path) -> tuple[dict, dict]:
     tri, net = [], []
 
     def image_to_gordon():
-        r = reconstruct_view(detect_grid(view.grid, pattern, view.white, **detect_options(rig)),
+        r = reconstruct_view(reconstruct_detection(view.grid, pattern, view.white, rig),
                              rig, pattern)
         tri.append(r.times["triangulate_s"])
         net.append(r.times["network_s"])
@@ -189,7 +189,7 @@ def size_scaling(reuse: dict) -> dict:
     """Simulate / detect / image-to-Gordon seconds at each image size, and the fitted slopes."""
     from nurbscan.detect import detect_grid
     from nurbscan.reconstruct import reconstruct_view
-    from nurbscan.reconstruct.pipeline import detect_options
+    from nurbscan.reconstruct.pipeline import reconstruct_detection
     from nurbscan.simulate import RenderSettings, default_rig, render_view, scale_camera
 
     scene, pattern, angle = reuse["scene"], reuse["pattern"], reuse["angle"]
@@ -205,7 +205,7 @@ def size_scaling(reuse: dict) -> dict:
             ts = time.perf_counter() - t
         td, _, _, _ = measure(lambda v=view: detect_grid(v.grid, pattern, v.white))
         ta, n, _, res = measure(lambda v=view, r=rig: reconstruct_view(
-            detect_grid(v.grid, pattern, v.white, **detect_options(r)), r,
+            reconstruct_detection(v.grid, pattern, v.white, r), r,
             pattern))
         px.append(w * h)
         t_det.append(td)
@@ -229,9 +229,8 @@ def size_scaling(reuse: dict) -> dict:
 
 def view_scaling(reuse: dict) -> dict:
     """Detect + reconstruct + merge seconds for 1, 2, 4, 8 views at 1 MP, and the slope."""
-    from nurbscan.detect import detect_grid
     from nurbscan.reconstruct import Model, reconstruct_view
-    from nurbscan.reconstruct.pipeline import add_view, detect_options
+    from nurbscan.reconstruct.pipeline import add_view, reconstruct_detection
     from nurbscan.simulate import RenderSettings, default_rig, render_view, scale_camera
 
     scene, pattern = reuse["scene"], reuse["pattern"]
@@ -245,8 +244,8 @@ def view_scaling(reuse: dict) -> dict:
     def run(n: int):
         model = Model()
         for k in range(n):
-            res = reconstruct_view(detect_grid(views[k].grid, pattern, views[k].white,
-                                               **detect_options(rig)), rig,
+            res = reconstruct_view(reconstruct_detection(views[k].grid, pattern,
+                                                         views[k].white, rig), rig,
                                    pattern)
             add_view(model, res, rig, k, angles[k])
         return model

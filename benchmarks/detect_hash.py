@@ -11,8 +11,8 @@ the run's name, a hash over all arrays of the result, and a hash per array; then
 sets that reconstruct and calibrate change (by name) and their hash. Two versions of the code
 behave the same on these inputs when every line is the same.
 
-Usage: ``PYTHONPATH=src python benchmarks/detect_hash.py [--quick]`` (``--quick``: without
-the 7.1 MP view).
+Usage: ``PYTHONPATH=src python benchmarks/detect_hash.py [--quick] [--options]``
+(``--quick``: without the 7.1 MP view; ``--options``: the option sets only).
 """
 
 from __future__ import annotations
@@ -62,17 +62,25 @@ def detect(image, pattern, white=None, epipolar=None, **changes):
 
 
 def option_sets() -> dict[str, dict]:
-    """The detect options that reconstruct and calibrate change, by name (no callables)."""
+    """The detect options that reconstruct and calibrate change, by name (no callables, and
+    none set to its default)."""
+    import inspect
+
+    import nurbscan.detect as det
     from nurbscan.calibrate import pipeline as cal
     from nurbscan.reconstruct import pipeline as rec
     from nurbscan.simulate.rig import default_rig
 
+    rec_opts = (rec.DETECT_OPTIONS if hasattr(rec, "DETECT_OPTIONS")
+                else rec.detect_options(default_rig()))
     out = {}
-    for name, opts in (("reconstruct", rec.detect_options(default_rig())),
-                       ("calibrate", cal.DETECT_OPTIONS)):
+    for name, opts in (("reconstruct", rec_opts), ("calibrate", cal.DETECT_OPTIONS)):
         if hasattr(opts, "changes"):
-            opts = opts.changes()
-        out[name] = {k: v for k, v in dict(opts).items() if not callable(v)}
+            out[name] = opts.changes()
+        else:  # keyword options of the single-function detector
+            default = {k: p.default for k, p in
+                       inspect.signature(det.detect_grid).parameters.items()}
+            out[name] = {k: v for k, v in opts.items() if not callable(v) and v != default[k]}
     return out
 
 
@@ -159,7 +167,7 @@ def runs(quick: bool = False):
 
 def main(argv: list[str]) -> None:
     quick = "--quick" in argv
-    for name, fn in runs(quick):
+    for name, fn in ([] if "--options" in argv else runs(quick)):
         total, per = result_hashes(fn())
         print(f"{name:22s} {total}  " + " ".join(f"{k}={v}" for k, v in per.items()),
               flush=True)

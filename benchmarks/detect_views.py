@@ -4,8 +4,8 @@ Usage: ``python benchmarks/detect_views.py SCAN_DIR ['{"option": value}']`` wher
 holds ``pattern.json``, ``views/view_KK_grid.png`` / ``_white.png`` and
 ``truth/view_KK.npz`` (what ``nurbscan demo`` or ``nurbscan simulate`` writes). Prints, per
 view and on average, :func:`nurbscan.detect.evaluate_detection`'s coverage, RMS, label rate
-and wrong lines over 20 px; the optional JSON is passed to
-:func:`nurbscan.detect.detect_grid`.
+and wrong lines over 20 px; the optional JSON names the options to change
+(:meth:`nurbscan.detect.DetectOptions.replace`, e.g. ``{"fit_rounds": 0}``).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import numpy as np
 
 
 def main(scan: Path, options: dict) -> None:
-    from nurbscan.detect import detect_grid, evaluate_detection
+    from nurbscan.detect import DetectOptions, detect_grid, evaluate_detection
     from nurbscan.io import read_image
     from nurbscan.pattern import load_pattern
 
@@ -31,7 +31,7 @@ def main(scan: Path, options: dict) -> None:
         white = read_image(scan / "views" / f"{stem}_white.png")
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            r = detect_grid(grid, pattern, white, **options)
+            r = detect_grid(grid, pattern, white, DetectOptions().replace(**options))
         ev = evaluate_detection(r, truth, pattern)
         rows.append((ev["coverage"], ev["rms_px"], ev["label_rate"],
                      ev["wrong_lines_over_20px"]))

@@ -17,6 +17,7 @@ from scipy.special import ndtr
 from nurbscan.cli import main
 from nurbscan.detect import (
     DetectionResult,
+    DetectOptions,
     detect_edge_points,
     detect_grid,
     evaluate_detection,
@@ -45,6 +46,11 @@ def view(pattern):
 def result(pattern, view):
     g, w, _ = view
     return detect_grid(g, pattern, w)
+
+
+def changed(**options):
+    """The default detection options with ``options`` changed (by name)."""
+    return DetectOptions().replace(**options)
 
 
 def to8(a):
@@ -299,7 +305,7 @@ def test_unpaired_lines_kept_on_request(teapot, teapot_result):
     1280 x 960: 2218 -> 2299 lines, coverage 0.540 -> 0.549, labels 99.98 %, RMS 0.055 ->
     0.056 px); every line of the default result is kept."""
     v, pat = teapot
-    r = detect_grid(v.grid, pat, v.white, min_paired=0)
+    r = detect_grid(v.grid, pat, v.white, changed(min_paired=0))
     base = evaluate_detection(teapot_result, v.truth, pat)
     ev = evaluate_detection(r, v.truth, pat)
     assert r.nlines >= teapot_result.nlines + 50, (r.nlines, teapot_result.nlines)
@@ -399,7 +405,7 @@ def test_cli_reads_a_chroma_subsampled_jpeg_as_such(tmp_path, pattern, view, cap
             warnings.simplefilter("ignore")
             api = detect_grid(read_image(paths[0], as_float=False), pattern,
                               read_image(paths[1], as_float=False),
-                              chroma_subsampled=name == "420")
+                              changed(chroma_subsampled=name == "420"))
         got = load_detection(out[name])
         assert np.array_equal(got.band, api.band) and len(got.x) == len(api.x)
         np.testing.assert_allclose(got.x, api.x, atol=1e-4)
@@ -470,7 +476,7 @@ def test_invalid_arrays(pattern, view):
     with pytest.raises(NurbscanError, match="NaN"):
         detect_grid(bad, pattern)
     with pytest.raises(NurbscanError, match="gamma"):
-        detect_grid(g, pattern, gamma=0)
+        detect_grid(g, pattern, options=changed(gamma=0))
 
 
 # ------------------------------------------------------------------ second pass and joins
@@ -635,7 +641,8 @@ def test_smoothing_lowers_teapot_rms(teapot, teapot_result):
     them, 0.0562 -> 0.0531 px); 7.1 MP bench view: RMS 0.0465 -> 0.0391 px."""
     v, pat = teapot
     ev = evaluate_detection(teapot_result, v.truth, pat)
-    off = evaluate_detection(detect_grid(v.grid, pat, v.white, smooth_reach=0), v.truth, pat)
+    off = evaluate_detection(detect_grid(v.grid, pat, v.white, changed(smooth_reach=0)), v.truth,
+                             pat)
     assert ev["median_abs_px"] < 0.93 * off["median_abs_px"], (off, ev)
     assert ev["rms_px"] < 0.97 * off["rms_px"], (off, ev)
     assert abs(ev["coverage"] - off["coverage"]) < 0.005, (off, ev)
@@ -700,7 +707,7 @@ def test_dominance_finds_edge_pixels_next_to_a_crossing_band():
 def teapot_no_corners(teapot):
     """The 1280 x 960 teapot view detected without the attached corner points."""
     v, pat = teapot
-    return detect_grid(v.grid, pat, v.white, corner_dominance=1.0)
+    return detect_grid(v.grid, pat, v.white, changed(corner_dominance=1.0))
 
 
 def test_corner_points_extend_the_teapot_lines(teapot, teapot_result, teapot_no_corners):
@@ -737,7 +744,7 @@ def test_chroma_subsampled_jpeg_is_measured_in_its_luma(teapot):
     g, w = jpeg(v.grid), jpeg(v.white)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        plain, as_such = (evaluate_detection(detect_grid(g, pat, w, chroma_subsampled=c),
+        plain, as_such = (evaluate_detection(detect_grid(g, pat, w, changed(chroma_subsampled=c)),
                                              v.truth, pat) for c in (False, True))
     assert as_such["rms_px"] < 0.85 * plain["rms_px"], (plain, as_such)
     assert as_such["label_rate"] >= 0.995 and as_such["wrong_lines_over_20px"] == 0, as_such
@@ -853,8 +860,8 @@ def test_low_dominance_raises_teapot_coverage(teapot, teapot_no_corners):
     v, pat = teapot
     # both without the attached corner points (corner_dominance), which this option predates
     base = evaluate_detection(teapot_no_corners, v.truth, pat)
-    r = detect_grid(v.grid, pat, v.white, dominance=0.5, corner_keep=1.0, refit_residual=0.15,
-                    corner_dominance=1.0)
+    r = detect_grid(v.grid, pat, v.white, changed(dominance=0.5, corner_keep=1.0,
+                                                  refit_residual=0.15, corner_dominance=1.0))
     ev = evaluate_detection(r, v.truth, pat)
     assert ev["coverage"] > base["coverage"] + 0.015, (base, ev)
     assert ev["label_rate"] >= 0.995, ev
@@ -932,13 +939,13 @@ def test_reading_along_the_grid_decodes_a_sheared_view(pattern, sheared_view):
     g, w, truth = sheared_view
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        r_pix = detect_grid(g, pattern, w, read_along="pixels")
+        r_pix = detect_grid(g, pattern, w, changed(read_along="pixels"))
         r = detect_grid(g, pattern, w)
     assert_more_labelled(r_pix, r, truth, pattern, gain=0.1)
     ev = evaluate_detection(r, truth, pattern)
     assert ev["rms_px"] < 0.05 and ev["intersection_rms_px"] < 0.25, ev
     with pytest.raises(NurbscanError, match="read_along"):
-        detect_grid(g, pattern, w, read_along="columns")
+        detect_grid(g, pattern, w, changed(read_along="columns"))
 
 
 def test_family_fit_counts_edges_along_the_grid_runs(pattern, sheared_view):
@@ -952,8 +959,8 @@ def test_family_fit_counts_edges_along_the_grid_runs(pattern, sheared_view):
     opts = {"pool_gap": 0.0, "collinear_rounds": 0}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        windows = detect_grid(g, pattern, w, fit_rounds=0, **opts)
-        fitted = detect_grid(g, pattern, w, **opts)
+        windows = detect_grid(g, pattern, w, changed(fit_rounds=0, **opts))
+        fitted = detect_grid(g, pattern, w, changed(**opts))
     assert_more_labelled(windows, fitted, truth, pattern, gain=0.08)
     ev = evaluate_detection(fitted, truth, pattern)
     assert ev["rms_px"] < 0.05, ev
@@ -968,7 +975,7 @@ def test_short_unconfirmed_lines_are_dropped_only_on_request(pattern, sheared_vi
     g, w, truth = sheared_view
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        checked = detect_grid(g, pattern, w, min_checked_length=0.5)
+        checked = detect_grid(g, pattern, w, changed(min_checked_length=0.5))
         kept = detect_grid(g, pattern, w)
 
     def short_unconfirmed(r):
@@ -1212,7 +1219,8 @@ def test_end_residual_lowers_teapot_rms(teapot, teapot_result):
     coverage 0.509 -> 0.504, intersections rms 0.086 -> 0.079 px)."""
     v, pat = teapot
     ev = evaluate_detection(teapot_result, v.truth, pat)
-    off = evaluate_detection(detect_grid(v.grid, pat, v.white, end_residual=0), v.truth, pat)
+    off = evaluate_detection(detect_grid(v.grid, pat, v.white, changed(end_residual=0)), v.truth,
+                             pat)
     assert ev["rms_px"] < off["rms_px"] - 0.0008, (off, ev)
     assert ev["coverage"] > off["coverage"] - 0.01, (off, ev)
     assert ev["label_rate"] >= 0.995 and ev["wrong_lines_over_20px"] == 0, ev
@@ -1293,7 +1301,7 @@ def oblique_colour_only(pattern, oblique_view):
     g, w, _ = oblique_view
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return detect_grid(g, pattern, w, fit_rounds=0, read_along="pixels")
+        return detect_grid(g, pattern, w, changed(fit_rounds=0, read_along="pixels"))
 
 
 def test_bands_tilted_past_45_degrees_are_read_by_family(pattern, oblique_view,
@@ -1304,7 +1312,7 @@ def test_bands_tilted_past_45_degrees_are_read_by_family(pattern, oblique_view,
     g, w, truth = oblique_view
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        r0 = detect_grid(g, pattern, w, families=False)
+        r0 = detect_grid(g, pattern, w, changed(families=False))
     ev = evaluate_detection(oblique_result, truth, pattern)
     ev0 = evaluate_detection(r0, truth, pattern)
     assert ev["coverage"] > 0.35, ev
@@ -1342,7 +1350,7 @@ def test_epipolar_labels_decode_the_pieces_of_an_oblique_view(pattern, oblique_v
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        r = detect_grid(g, pattern, w, epipolar=other, fit_rounds=0, read_along="pixels")
+        r = detect_grid(g, pattern, w, changed(fit_rounds=0, read_along="pixels"), epipolar=other)
     assert_more_labelled(oblique_colour_only, r, truth, pattern, gain=0.02)
 
 
@@ -1485,7 +1493,7 @@ def test_family_fit_labels_the_pieces_of_an_oblique_view(pattern, oblique_view, 
     g, w, truth = oblique_view
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        r = detect_grid(g, pattern, w, read_along="pixels")
+        r = detect_grid(g, pattern, w, changed(read_along="pixels"))
     assert_more_labelled(oblique_colour_only, r, truth, pattern, gain=0.012)
 
 
@@ -1501,10 +1509,11 @@ def test_balanced_fit_line_measures_an_oblique_view(pattern, oblique_view, obliq
     g, w, truth = oblique_view
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        row, ev = (evaluate_detection(detect_grid(g, pattern, w, fit_line=f,
-                                                  read_along="pixels"), truth, pattern)
+        row, ev = (evaluate_detection(detect_grid(g, pattern, w, changed(fit_line=f,
+                                                                         read_along="pixels")),
+                                      truth, pattern)
                    for f in ("row", "balanced"))
-        grid_row = evaluate_detection(detect_grid(g, pattern, w, fit_line="row"), truth,
+        grid_row = evaluate_detection(detect_grid(g, pattern, w, changed(fit_line="row")), truth,
                                       pattern)
     grid = evaluate_detection(oblique_result, truth, pattern)
     assert grid["rms_px"] < 0.65 * grid_row["rms_px"], (grid_row, grid)
@@ -1515,7 +1524,7 @@ def test_balanced_fit_line_measures_an_oblique_view(pattern, oblique_view, obliq
     assert ev["intersection_rms_px"] < 0.6 * row["intersection_rms_px"], (row, ev)
     assert ev["label_rate"] >= 0.995 and ev["wrong_lines_over_20px"] == 0, ev
     with pytest.raises(NurbscanError, match="fit_line"):
-        detect_grid(g, pattern, w, fit_line="gradient")
+        detect_grid(g, pattern, w, changed(fit_line="gradient"))
 
 
 def test_fit_slopes_lie_between_the_other_edges_and_the_own_normal():
@@ -1600,8 +1609,8 @@ def test_oblique_families_measured_by_their_own_components(pattern, sheared_view
     g, w, truth = sheared_view
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        on, off = (evaluate_detection(detect_grid(g, pattern, w, oblique=o), truth, pattern)
-                   for o in (True, False))
+        on, off = (evaluate_detection(detect_grid(g, pattern, w, changed(oblique=o)), truth,
+                                      pattern) for o in (True, False))
     assert on["rms_px"] < 0.045 and on["rms_px"] < 0.6 * off["rms_px"], (off, on)
     assert on["coverage"] > off["coverage"] + 0.06, (off, on)
     assert on["intersection_rms_px"] < 0.5 * off["intersection_rms_px"], (off, on)
@@ -1618,7 +1627,8 @@ def test_partner_drops_unmeasured_keeps_the_points_beside_kinks(teapot):
     v, pat = teapot
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = {m: detect_grid(v.grid, pat, v.white, partner_drops=m, read_along="pixels")
+        res = {m: detect_grid(v.grid, pat, v.white,
+                              changed(partner_drops=m, read_along="pixels"))
                for m in ("all", "none", "unmeasured")}
     ev = {m: evaluate_detection(r, v.truth, pat) for m, r in res.items()}
     assert ev["unmeasured"]["coverage"] > ev["all"]["coverage"] + 0.003
@@ -1641,7 +1651,7 @@ def test_partner_drops_unmeasured_keeps_the_points_beside_kinks(teapot):
     e = err[np.isfinite(err)]
     assert len(e) > 300 and np.percentile(e, 90) < 0.2 and e.max() < 1.0, np.sort(e)[-5:]
     with pytest.raises(NurbscanError, match="partner_drops"):
-        detect_grid(v.grid, pat, v.white, partner_drops="some")
+        detect_grid(v.grid, pat, v.white, changed(partner_drops="some"))
 
 
 def test_new_chain_ends_left_by_the_row_filters_are_tested(teapot):
@@ -1664,9 +1674,9 @@ def test_new_chain_ends_left_by_the_row_filters_are_tested(teapot):
             warnings.simplefilter("ignore")
             # the points as measured (the smoothing of the final chains moves their
             # neighbours)
-            a = detect_grid(v.grid, pat, v.white, new_end_residual=0, smooth_reach=0,
-                            **options)
-            b = detect_grid(v.grid, pat, v.white, smooth_reach=0, **options)
+            a = detect_grid(v.grid, pat, v.white,
+                            changed(new_end_residual=0, smooth_reach=0, **options))
+            b = detect_grid(v.grid, pat, v.white, changed(smooth_reach=0, **options))
         kept = set(zip(b.x.round(4), b.y.round(4), strict=True))
         gone = np.array([p not in kept for p in zip(a.x.round(4), a.y.round(4), strict=True)])
         assert len(b.x) == len(a.x) - gone.sum() and gone.sum() >= 10
@@ -1798,7 +1808,8 @@ def test_fit_reach_labels_beyond_the_last_labelled_rows(teapot, teapot_result):
     v, pat = teapot
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        inside = detect_grid(v.grid, pat, v.white, fit_reach=-0.125)  # the rule before
+        # the rule before
+        inside = detect_grid(v.grid, pat, v.white, changed(fit_reach=-0.125))
     assert_more_labelled(inside, teapot_result, v.truth, pat, gain=0.0015)
 
 
@@ -1811,7 +1822,7 @@ def test_plane_support_keeps_pieces_whose_rows_are_hidden(teapot, teapot_result)
     v, pat = teapot
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        rows_only = detect_grid(v.grid, pat, v.white, plane_radius=0)
+        rows_only = detect_grid(v.grid, pat, v.white, changed(plane_radius=0))
     assert_more_labelled(rows_only, teapot_result, v.truth, pat, gain=0.01)
     ev = evaluate_detection(teapot_result, v.truth, pat)
     assert ev["rms_px"] < 0.06 and ev["intersection_rms_px"] < 0.15, ev

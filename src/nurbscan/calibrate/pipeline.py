@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from .._parallel import process_map
+from ..detect.options import DetectOptions
 from ..errors import NurbscanError
 from ..io import chroma_subsampled, read_image
 from ..io.atomic import read_json
@@ -248,9 +249,9 @@ def _concat(obs: list[ProjObs]) -> ProjObs:
 #: (``read_along`` "pixels"), not along the other family's edges: on the held-out pose the
 #: grid runs keep 1.6 % more points (211,487 against 208,132) but the detection floor with
 #: the true rig rises from 0.0118 to 0.0137 mm.
-DETECT_OPTIONS = {"corner_dominance": 1.0, "fit_rounds": 0, "new_end_residual": 0.0,
-                  "min_checked_length": 0.0, "sigma_per_band": 8.0, "plane_radius": 0.0,
-                  "partner_drops": "all", "read_along": "pixels"}
+DETECT_OPTIONS = DetectOptions().replace(
+    corner_dominance=1.0, fit_rounds=0, new_end_residual=0.0, min_checked_length=0.0,
+    sigma_per_band=8.0, plane_radius=0.0, partner_drops="all", read_along="pixels")
 
 
 def _read_pose(job) -> tuple[tuple[int, int], np.ndarray | None, Any]:
@@ -268,8 +269,8 @@ def _read_pose(job) -> tuple[tuple[int, int], np.ndarray | None, Any]:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         # a chroma-subsampled JPEG's colour channels have displaced edges (detect_grid)
-        det = detect_grid(read_image(gpath, as_float=False), pattern, white=white,
-                          **DETECT_OPTIONS, chroma_subsampled=chroma_subsampled(gpath))
+        det = detect_grid(read_image(gpath, as_float=False), pattern, white,
+                          DETECT_OPTIONS.replace(chroma_subsampled=chroma_subsampled(gpath)))
     return (white.shape[1], white.shape[0]), c, det
 
 

@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     """Detect the grid in one image; returns the exit status."""
     import warnings
 
-    from ..detect import detect_grid, draw_overlay
+    from ..detect import DetectOptions, detect_grid, draw_overlay
     from ..errors import NurbscanError
     from ..io import chroma_subsampled, read_image, write_image
     from ..pattern import load_pattern
@@ -67,8 +67,9 @@ def run(args: argparse.Namespace) -> int:
               "more accurate edges)", file=sys.stderr)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        result = detect_grid(image, pattern, white, gamma=args.gamma, sigma=args.sigma,
-                             epipolar=epipolar, chroma_subsampled=subsampled)
+        options = DetectOptions().replace(gamma=args.gamma, sigma=args.sigma,
+                                          chroma_subsampled=subsampled)
+        result = detect_grid(image, pattern, white, options, epipolar=epipolar)
     if result.nlines == 0:
         raise NurbscanError(f"{args.image}: " + (result.warnings[0] if result.warnings
                                                   else "no grid line decoded"))

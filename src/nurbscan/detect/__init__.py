@@ -1,7 +1,8 @@
 """Reading the grid from one photograph: sub-pixel edges, line tracing and PRMVS decoding.
 
-method.md section 2. :func:`detect_grid` returns a :class:`DetectionResult` (saved as
-``lines.json``); :func:`evaluate_detection` measures one against the simulator's truth.
+method.md section 2. :func:`detect_grid` (options: :class:`DetectOptions`) returns a
+:class:`DetectionResult` (saved as ``lines.json``); :func:`evaluate_detection` measures one
+against the simulator's truth.
 """
 
 from .core import detect_grid, grid_intersections
@@ -9,10 +10,12 @@ from .edges import EdgePoints, detect_edge_points
 from .evaluate import evaluate_detection
 from .lines import trace_lines
 from .normalize import Normalised, edge_signal, normalize
+from .options import DetectOptions
 from .overlay import draw_overlay
 from .result import DetectionResult, load_detection
 
 __all__ = [
+    "DetectOptions",
     "DetectionResult",
     "EdgePoints",
     "Normalised",

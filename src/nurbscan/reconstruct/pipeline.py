@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .._parallel import process_map
+from ..detect.options import DetectOptions
 from ..errors import NurbscanError
 from ..io import chroma_subsampled, read_image
 from ..io.atomic import read_json
@@ -114,60 +115,70 @@ def _write_overlay(path: Path, image: np.ndarray, det, pattern, width: int = 153
     write_image(path, rgb)
 
 
-def detect_options(rig) -> dict:
-    """:func:`~nurbscan.detect.detect_grid` options for reconstruction with a calibrated rig.
+#: :func:`~nurbscan.detect.detect_grid` options for reconstruction with a calibrated rig (which
+#: :func:`_view_job` passes as ``epipolar``, :func:`~nurbscan.reconstruct.light.other_coordinate`).
+#:
+#: Decode with the rig's epipolar constraint too (``epipolar``), and keep the lines and
+#: points that only the row-support filters would drop (``min_row_support=0``,
+#: ``max_row_residual=0``, ``keep_unsupported=True``). Those filters guard the point
+#: accuracy of a plain detection; here the network's 3-D crossing test
+#: (:func:`~nurbscan.reconstruct.network.complete_cells`) guards the surfaces. Teapot scan
+#: (7.1 MP, 8 views, rig calibrated from the images): Gordon coverage 61.1 -> 65.7 %,
+#: Gordon mean 0.0043 -> 0.0047 mm, max 0.018 -> 0.019 mm; the raw triangulated edge
+#: points more than 0.5 mm off the surface 0.05 -> 0.16 %; the detection itself (views
+#: 0-7): coverage 0.706 -> 0.748, RMS 0.057 -> 0.092 px, 1 -> 10 wrong lines over 20 px,
+#: none of which reaches a surface.
+#:
+#: The point filters that drop single points near the band corners and off the straight
+#: line through their neighbours are off as well (``max_residual``, ``refit_residual``,
+#: ``end_residual`` 0, ``partner_drops`` "none", ``min_width`` 0, ``min_strength`` 0.06),
+#: and so is the one that drops lines without two points paired across a band
+#: (``min_paired`` 0): the 3-D curve fits remove outliers themselves. With the looser
+#: crossing test and the tangent reach of the network
+#: (:func:`~nurbscan.reconstruct.view.reconstruct_view`), teapot scan: Gordon coverage
+#: 72.5 -> 74.5 % (point filters; 83.4 -> 84.2 % for ``min_paired`` once the crossing test
+#: allowed for obliquity), Gordon mean 0.0061 -> 0.0065 mm; detection, views 0-1:
+#: coverage 0.743 -> 0.799 -> 0.805, RMS 0.10 -> 0.13 -> 0.16 px.
+#:
+#: The edge filter is narrower than a plain detection's (band / 10 instead of band / 8,
+#: 1.0 px instead of 1.28 px on the teapot demo scan): it resolves more of the squeezed
+#: bands at the bottom and on the lid, and the point noise it adds is averaged by the 3-D
+#: curve fits. Gordon coverage 84.2 -> 86.2 % (fixed 0.9 px: 86.0 %, 1.1 px: 85.9 %),
+#: Gordon mean 0.0089 -> 0.0084 mm.
+#:
+#: The labels from the family's own coordinate map (``fit_rounds``) are off: with the rig
+#: the epipolar prediction labels those pieces, and both together gave teapot demo scan
+#: Gordon coverage 90.09 -> 90.01 %, Gordon mean 0.0128 -> 0.0130 mm. So are the corner
+#: points (``corner_dominance``): without the point filters they reach the curve fits
+#: unchecked (Gordon coverage 90.09 -> 89.86 %). And so is the smoothing along the chains
+#: (``smooth_reach``): it would spread the outliers that the point filters leave here over
+#: their neighbours, where the 3-D fits no longer see them as outliers (Gordon mean 0.0128 ->
+#: 0.0134 mm, lines 0.0083 / 0.0038 -> 0.0089 / 0.0042 mm, 974 -> 961 patches).
+#:
+#: The short lines that no consistent intersection confirms are kept
+#: (``min_checked_length`` 0): the network's crossing test screens them, and dropping them
+#: (12) cost Gordon coverage 90.24 -> 89.96 % (Gordon mean 0.0122 -> 0.0117 mm).
+DETECT_OPTIONS = DetectOptions().replace(
+    min_row_support=0.0, max_row_residual=0.0, keep_unsupported=True, max_residual=0.0,
+    refit_residual=0.0, end_residual=0.0, partner_drops="none", min_width=0.0,
+    min_strength=0.06, min_paired=0, sigma_per_band=10.0, fit_rounds=0, corner_dominance=1.0,
+    smooth_reach=0, min_checked_length=0.0)
 
-    Decode with the rig's epipolar constraint too (``epipolar``), and keep the lines and
-    points that only the row-support filters would drop (``min_row_support=0``,
-    ``max_row_residual=0``, ``keep_unsupported=True``). Those filters guard the point
-    accuracy of a plain detection; here the network's 3-D crossing test
-    (:func:`~nurbscan.reconstruct.network.complete_cells`) guards the surfaces. Teapot scan
-    (7.1 MP, 8 views, rig calibrated from the images): Gordon coverage 61.1 -> 65.7 %,
-    Gordon mean 0.0043 -> 0.0047 mm, max 0.018 -> 0.019 mm; the raw triangulated edge
-    points more than 0.5 mm off the surface 0.05 -> 0.16 %; the detection itself (views
-    0-7): coverage 0.706 -> 0.748, RMS 0.057 -> 0.092 px, 1 -> 10 wrong lines over 20 px,
-    none of which reaches a surface.
 
-    The point filters that drop single points near the band corners and off the straight
-    line through their neighbours are off as well (``max_residual``, ``refit_residual``,
-    ``end_residual`` 0, ``partner_drops`` "none", ``min_width`` 0, ``min_strength`` 0.06),
-    and so is the one that drops lines without two points paired across a band
-    (``min_paired`` 0): the 3-D curve fits remove outliers themselves. With the looser
-    crossing test and the tangent reach of the network
-    (:func:`~nurbscan.reconstruct.view.reconstruct_view`), teapot scan: Gordon coverage
-    72.5 -> 74.5 % (point filters; 83.4 -> 84.2 % for ``min_paired`` once the crossing test
-    allowed for obliquity), Gordon mean 0.0061 -> 0.0065 mm; detection, views 0-1:
-    coverage 0.743 -> 0.799 -> 0.805, RMS 0.10 -> 0.13 -> 0.16 px.
+def reconstruct_detection(grid, pattern, white, rig, chroma: bool = False,
+                          timings: dict | None = None):
+    """:func:`~nurbscan.detect.detect_grid` as reconstruction runs it: :data:`DETECT_OPTIONS`
+    and the rig's epipolar constraint (``chroma``: the grid image is a chroma-subsampled
+    JPEG; ``timings`` gets the detection's stage times)."""
+    from ..detect import detect_grid
 
-    The edge filter is narrower than a plain detection's (band / 10 instead of band / 8,
-    1.0 px instead of 1.28 px on the teapot demo scan): it resolves more of the squeezed
-    bands at the bottom and on the lid, and the point noise it adds is averaged by the 3-D
-    curve fits. Gordon coverage 84.2 -> 86.2 % (fixed 0.9 px: 86.0 %, 1.1 px: 85.9 %),
-    Gordon mean 0.0089 -> 0.0084 mm.
-
-    The labels from the family's own coordinate map (``fit_rounds``) are off: with the rig
-    the epipolar prediction labels those pieces, and both together gave teapot demo scan
-    Gordon coverage 90.09 -> 90.01 %, Gordon mean 0.0128 -> 0.0130 mm. So are the corner
-    points (``corner_dominance``): without the point filters they reach the curve fits
-    unchecked (Gordon coverage 90.09 -> 89.86 %). And so is the smoothing along the chains
-    (``smooth_reach``): it would spread the outliers that the point filters leave here over
-    their neighbours, where the 3-D fits no longer see them as outliers (Gordon mean 0.0128 ->
-    0.0134 mm, lines 0.0083 / 0.0038 -> 0.0089 / 0.0042 mm, 974 -> 961 patches).
-
-    The short lines that no consistent intersection confirms are kept
-    (``min_checked_length`` 0): the network's crossing test screens them, and dropping them
-    (12) cost Gordon coverage 90.24 -> 89.96 % (Gordon mean 0.0122 -> 0.0117 mm).
-    """
-    return {"epipolar": functools.partial(other_coordinate, rig), "min_row_support": 0.0,
-            "max_row_residual": 0.0, "keep_unsupported": True, "max_residual": 0.0,
-            "refit_residual": 0.0, "end_residual": 0.0, "partner_drops": "none",
-            "min_width": 0.0, "min_strength": 0.06, "min_paired": 0, "sigma_per_band": 10.0,
-            "fit_rounds": 0, "corner_dominance": 1.0, "smooth_reach": 0, "min_checked_length": 0}
+    options = DETECT_OPTIONS.replace(chroma_subsampled=chroma) if chroma else DETECT_OPTIONS
+    return detect_grid(grid, pattern, white, options,
+                       epipolar=functools.partial(other_coordinate, rig), timings=timings)
 
 
 def _view_job(job: dict):
     """Read, detect and reconstruct one view: ``(ViewResult, lines, timings)``."""
-    from ..detect import detect_grid
 
     t0 = time.perf_counter()
     # the file's own integer type: detect linearises it by table look-up (7.1 MP teapot view:
@@ -176,15 +187,18 @@ def _view_job(job: dict):
     white = read_image(job["white"], as_float=False) if job["white"] is not None else None
     t1 = time.perf_counter()
     # a chroma-subsampled JPEG's colour channels have displaced edges (detect_grid)
-    det = detect_grid(grid, job["pattern"], white, **detect_options(job["rig"]),
-                      chroma_subsampled=chroma_subsampled(job["grid"]))
+    stages: dict = {}
+    det = reconstruct_detection(grid, job["pattern"], white, job["rig"],
+                                chroma_subsampled(job["grid"]), stages)
     t2 = time.perf_counter()
     res = reconstruct_view(det, job["rig"], job["pattern"], **job["kwargs"])
     t3 = time.perf_counter()
     if job.get("overlay") is not None:
         _write_overlay(job["overlay"], grid, det, job["pattern"])
+    # the detection's stages (detect_grid's timings) as detect_<stage>_s
     return res, det.nlines, {"read_s": round(t1 - t0, 3), "detect_s": round(t2 - t1, 3),
-                             "image_to_gordon_s": round(t3 - t1, 3)}
+                             "image_to_gordon_s": round(t3 - t1, 3),
+                             **{f"detect_{k}": round(v, 3) for k, v in stages.items()}}
 
 
 def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,

@@ -1,0 +1,214 @@
+"""The refinement stage of :func:`~nurbscan.detect.detect_grid`: the labelled lines' points
+selected, re-measured in their band's clean colour channels and filtered.
+
+:func:`select_points` keeps the labelled chains and their points that are one edge of a band
+crossing (and those only the re-measurement keeps); :func:`refine_points` re-measures them
+(:func:`~nurbscan.detect.edges.refine_by_channels`), places the points without a clean
+channel on their neighbours' line, drops kinks, the partners of dropped points and the
+disturbed chain ends and tails (:func:`~nurbscan.detect.chains.chain_end_residual`,
+:func:`~nurbscan.detect.chains.chain_tails`). Returns :class:`Lines`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .chains import SIGMA_ALONG, Chains, _along_across, chain_end_residual, chain_tails
+from .crossings import Reading
+from .edges import refine_by_channels
+from .labels import Labels
+from .lines import chain_normals, local_residual, neighbour_fit
+from .prepare import NoGrid, Prepared
+
+#: Drop edge points closer than this (camera px) to an edge pixel of the other direction; 0
+#: keeps them (3 px halved the 95th percentile error at the cost of a fifth of the points).
+CROSSING_MARGIN = 0.0
+#: Also keep the points of labelled lines that are not one edge of a band crossing when the
+#: re-measurement measured them (7.1 MP teapot views 0-7 with the row-support filters: mean
+#: coverage 0.609, RMS 0.048 px, against 0.576 and 0.047 px without them).
+KEEP_UNPAIRED = True
+#: Points the re-measurement could not measure: "keep" them (moved onto their re-measured
+#: neighbours' line where there are such), keep only those so moved ("fit"), or "drop" them.
+UNREFINED = "keep"
+#: Drop the tail points of chains that veer more than this (camera px) off the line through
+#: the chain before them (:func:`~nurbscan.detect.chains.chain_tails`); demo scan view 5: 3.0
+#: RMS 0.040 px, coverage 0.7955 -> 0.7940; 1.0: 0.7880. With ``epipolar`` 1.0 (the pieces it
+#: labels include tracer tails a few px off).
+TAIL_RESIDUAL, TAIL_RESIDUAL_EPIPOLAR = 3.0, 1.0
+
+
+@dataclass(frozen=True)
+class Lines:
+    """Labelled edge lines (L) and their points (M), grouped by line.
+
+    Attributes
+    ----------
+    x, y, strength : (M,) float
+        Points, camera px, and their edge derivative, per px.
+    line : (M,) int
+        Line of each point, in [0, L), non-decreasing.
+    band, direction, edge : (L,) int
+        Band index, 0 vertical / 1 horizontal band, 0 rising / 1 falling.
+    votes, agreement : (L,) int, float
+        The colour windows' votes for the band and their share.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    strength: np.ndarray
+    line: np.ndarray
+    band: np.ndarray
+    direction: np.ndarray
+    edge: np.ndarray
+    votes: np.ndarray
+    agreement: np.ndarray
+
+    def coordinates(self, pattern) -> np.ndarray:
+        """Projector coordinate of each line's edge (L,), px."""
+        ldir, lab = self.direction, self.band
+        return np.where(ldir == 0,
+                        pattern.edge_coordinate("vertical", np.where(ldir == 0, lab, 0),
+                                                self.edge),
+                        pattern.edge_coordinate("horizontal", np.where(ldir == 1, lab, 0),
+                                                self.edge))
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The points of the labelled lines before their re-measurement.
+
+    Attributes
+    ----------
+    lines : Lines
+        The labelled lines (renumbered) and their selected points.
+    keep : (N,) bool
+        Which chain points were selected.
+    paired : (M,) bool
+        The selected points that are one edge of a band crossing.
+    """
+
+    lines: Lines
+    keep: np.ndarray
+    paired: np.ndarray
+
+
+def select_points(chains: Chains, reading: Reading, labels: Labels, prep: Prepared,
+                  options, refine: bool) -> Selection:
+    """The labelled chains (renumbered) with their points that are one edge of a band
+    crossing, strong enough and on their chain's line, and with ``refine`` the others too
+    where the bands are resolved (``options``: :class:`~nurbscan.detect.options.
+    RefineOptions`). Raises :class:`NoGrid` when no chain is labelled."""
+    px, py, cls, line, nlines = chains.x, chains.y, chains.cls, chains.line, chains.nlines
+    label = labels.label
+    ldir = np.zeros(nlines, np.int64)
+    if len(line):
+        ldir[line] = cls // 2
+        ledge = np.zeros(nlines, np.int64)
+        ledge[line] = cls % 2
+    else:
+        ledge = np.zeros(0, np.int64)
+    good = label >= 0
+    if not np.any(good):
+        raise NoGrid("image: no grid line could be decoded (unrelated image, or a pattern "
+                     "file that does not match the photograph)", prep.size)
+    # keep the points of labelled lines that are one edge of a band crossing (a rising /
+    # falling pair of plausible width along the row or column): an edge whose partner is
+    # hidden lies inside a band of the other direction, near its corners, and is less exact
+    # and whose edge is clear of the noise (low-contrast edges are the least exact)
+    paired = reading.paired & (chains.strength >= options.min_strength)
+    if options.max_residual > 0:
+        along = np.where(cls < 2, py, px)
+        across = np.where(cls < 2, px, py)
+        paired &= local_residual(along, across, line) <= options.max_residual
+    if CROSSING_MARGIN > 0:
+        # near a crossing band's edge the row (column) profile is disturbed by the corner
+        w, h = prep.size
+        ix, iy = chains.ix, chains.iy
+        for d in (0, 1):
+            mask = np.full((h, w), 255, np.uint8)
+            o_ = (cls // 2) == 1 - d
+            mask[iy[o_], ix[o_]] = 0
+            dist_o = cv2.distanceTransform(mask, cv2.DIST_L2, 3)
+            sel_d = (cls // 2) == d
+            paired[sel_d] &= dist_o[iy[sel_d], ix[sel_d]] >= CROSSING_MARGIN
+    good &= np.bincount(line[paired], minlength=nlines) >= options.min_paired
+    new_id = np.cumsum(good) - 1
+    keep_unpaired = KEEP_UNPAIRED and prep.fine
+    keep = good[line] & (paired | (keep_unpaired & refine))
+    lines = Lines(x=px[keep], y=py[keep], strength=chains.strength[keep],
+                  line=new_id[line[keep]], band=label[good], direction=ldir[good],
+                  edge=ledge[good], votes=labels.votes[good], agreement=labels.agreement[good])
+    return Selection(lines, keep, paired[keep])
+
+
+def refine_points(sel: Selection, chains: Chains, reading: Reading, prep: Prepared, pattern,
+                  options, refine: bool, epipolar: bool) -> Lines:
+    """Re-measure the selected points (with ``refine``) and filter them: kinks, partners
+    of dropped points, disturbed chain ends and tails (``options``:
+    :class:`~nurbscan.detect.options.RefineOptions`; ``epipolar``: the rig labelled some
+    lines, whose tails are tested more tightly)."""
+    lines, keep, paired_k = sel.lines, sel.keep, sel.paired
+    px, py, line, strength = lines.x, lines.y, lines.line, lines.strength
+    lab, ldir = lines.band, lines.direction
+    cls = chains.cls
+    fine, sigma = prep.fine, prep.sigma
+    partner_drops = options.partner_drops if fine else "none"
+    if refine:
+        # second pass: re-measure each point in its band's clean colour channels
+        seq = np.asarray(pattern.sequence)
+        chn = prep.normalised.planes()
+        colour = np.asarray(pattern.rgb)[seq[lab[line]]] > 127
+        vk = cls[keep] < 2
+        normal = None
+        if fine:
+            # a point is judged clean along its chain's normal, so that edges tilted past 14
+            # degrees are re-measured too (narrow bands keep the x / y rule: there the extra
+            # points cost accuracy, 640 x 480 calibration views)
+            normal = chain_normals(px, py, vk, line)
+        px, py, done = refine_by_channels(chn, chains.ix[keep], chains.iy[keep], cls[keep],
+                                          colour, px, py, sigma, SIGMA_ALONG, normal=normal,
+                                          across=chains.across[keep],
+                                          slope=chains.slope[keep])
+        del chn
+        # points with no clean channel (their crossing band shares the band's channels) are
+        # placed on the straight line through their re-measured chain neighbours
+        c0, okf = neighbour_fit(*_along_across(px, py, vk), line, done,
+                                both_sides=False)
+        fix = okf & ~done
+        px = np.where(fix & vk, c0, px)
+        py = np.where(fix & ~vk, c0, py)
+        # unpaired points (kept with keep_unpaired) only where re-measured
+        kp = paired_k | done
+        if UNREFINED == "fit":
+            kp &= done | fix
+        elif UNREFINED == "drop":
+            kp &= done
+        measured = kp.copy()
+        if options.refit_residual > 0:
+            # a point off the straight line through its re-measured neighbours (a kink where
+            # the edge meets an occluding contour, a disturbed corner) is dropped
+            res = local_residual(*_along_across(px, py, vk), line)
+            kp &= res <= options.refit_residual
+        if partner_drops != "none":
+            # a point whose crossing partner was dropped is as disturbed (same row, same band);
+            # with "unmeasured", not when the partner went as a kink (its own corner)
+            kept = np.zeros(len(keep), bool)
+            kidx = np.nonzero(keep)[0]
+            kept[kidx[kp if partner_drops == "all" else measured]] = True
+            pk = reading.partner[kidx]
+            kp &= (pk < 0) | kept[np.maximum(pk, 0)]
+        px, py, line, strength = px[kp], py[kp], line[kp], strength[kp]
+    end_residual = options.end_residual
+    tail_residual = TAIL_RESIDUAL_EPIPOLAR if epipolar else TAIL_RESIDUAL
+    if (end_residual > 0 or tail_residual > 0) and len(px):
+        ke = np.ones(len(px), bool)
+        if end_residual > 0:
+            ke &= chain_end_residual(px, py, ldir[line], line) <= end_residual
+        if tail_residual > 0:
+            ke &= ~chain_tails(px, py, ldir[line], line, tail_residual)
+        px, py, line, strength = px[ke], py[ke], line[ke], strength[ke]
+    return Lines(x=px, y=py, strength=strength, line=line, band=lab, direction=ldir,
+                 edge=lines.edge, votes=lines.votes, agreement=lines.agreement)
