@@ -1826,3 +1826,35 @@ def test_plane_support_keeps_pieces_whose_rows_are_hidden(teapot, teapot_result)
     assert_more_labelled(rows_only, teapot_result, v.truth, pat, gain=0.01)
     ev = evaluate_detection(teapot_result, v.truth, pat)
     assert ev["rms_px"] < 0.06 and ev["intersection_rms_px"] < 0.15, ev
+
+
+def test_detect_options_round_trip_and_replace(pattern, view, result):
+    """DetectOptions: JSON round trip, changes by field or group name, unknown names refused;
+    the keyword calls of the single-function detector give the same result (with a
+    DeprecationWarning), and ``timings`` gets every stage."""
+    from nurbscan.detect.options import FamilyOptions
+
+    opts = DetectOptions().replace(fit_rounds=0, read_along="pixels", gamma=2.0)
+    assert opts.fits.fit_rounds == 0 and opts.reading.read_along == "pixels"
+    assert opts.changes() == {"fit_rounds": 0, "read_along": "pixels", "gamma": 2.0}
+    text = json.dumps(opts.to_dict())
+    assert DetectOptions.from_dict(json.loads(text)) == opts
+    assert DetectOptions().replace(fits=FamilyOptions(fit_rounds=1)).fits.fit_rounds == 1
+    assert DetectOptions().replace(fits={"fit_reach": 0.5}).fits.fit_reach == 0.5
+    with pytest.raises(NurbscanError, match="unknown option 'fit_round'"):
+        DetectOptions().replace(fit_round=1)
+    with pytest.raises(NurbscanError, match="unknown group"):
+        DetectOptions.from_dict({"edge": {}})
+    g, w, _ = view
+    timings = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        new = detect_grid(g, pattern, w, changed(smooth_reach=0), timings=timings)
+    with pytest.warns(DeprecationWarning):
+        old = detect_grid(g, pattern, w, smooth_reach=0)
+    assert np.array_equal(new.x, old.x) and np.array_equal(new.cam, old.cam)
+    assert not np.array_equal(new.x, result.x)
+    assert set(timings) == {"normalise_s", "edges_s", "chains_s", "reading_s", "decoding_s",
+                            "families_s", "refine_s", "intersections_s", "checks_s",
+                            "result_s"}
+    assert all(t >= 0 for t in timings.values())

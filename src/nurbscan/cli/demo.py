@@ -1,14 +1,13 @@
 """``nurbscan demo``: run the whole pipeline on the built-in teapot scene.
 
 Simulate a turntable scan of the Utah teapot (real size), calibrate the rig from the simulated
-calibration images (never from the true rig), reconstruct, evaluate against the truth and write
-the model. Stages that are not built yet are named and skipped.
+calibration images (never from the true rig), reconstruct, export the model for VR, evaluate
+against the truth and write the report.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 import time
 from pathlib import Path
@@ -22,12 +21,17 @@ def register(sub) -> None:
         "demo",
         help="run the whole pipeline on the built-in teapot scene",
         description=(
-            "Run the whole pipeline on the built-in teapot scene: writes DIR/pattern.png, "
-            "DIR/scan/ (simulated views, calibration images and truth), DIR/calib.json, "
-            "DIR/model/ and DIR/evaluation.json. Stages not yet built are named and skipped."
+            "Run the whole pipeline on the built-in teapot scene: simulate, calibrate from "
+            "the calibration images, reconstruct, export, evaluate and report. Writes "
+            "DIR/pattern.png, DIR/scan/ (simulated views, calibration images and truth), "
+            "DIR/calib.json, DIR/model/ (model.json: the NURBS curves and surfaces, points.npz, "
+            "model.png), DIR/teapot.glb (the "
+            "model for VR), DIR/evaluation.json and DIR/evaluation.md (Table I against the "
+            "truth) and DIR/report.html (the scan report)."
         ),
     )
-    p.add_argument("-o", "--output", default="demo", type=Path, help="output folder (demo/)")
+    p.add_argument("-o", "--output", default="demo", type=Path, metavar="DIR",
+                   help="output folder (demo/)")
     p.add_argument("--views", type=int, default=8, help="turntable views (8)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the simulator (0)")
     p.add_argument("--width", type=int, default=None,
@@ -41,14 +45,6 @@ def _cli(argv: list[str]) -> int:
     from . import main as cli_main
 
     return cli_main(argv)
-
-
-def _available(module: str) -> bool:
-    try:
-        importlib.import_module(module)
-    except ImportError:
-        return False
-    return True
 
 
 def run(args: argparse.Namespace) -> int:
@@ -74,29 +70,25 @@ def run(args: argparse.Namespace) -> int:
     calib = out / "calib.json"
     model = out / "model"
     plan = [
-        ("nurbscan.simulate.scan", "simulate (issue 3)", "simulate the teapot scan",
+        ("simulate the teapot scan",
          ["simulate", "teapot", "-o", str(scan), "--views", str(args.views),
           "--seed", str(args.seed)] + size),
-        ("nurbscan.calibrate", "calibrate (issue 6)", "calibrate from the calibration images",
+        ("calibrate from the calibration images",
          ["calibrate", str(scan / "calibration"), "--pattern", str(scan / "pattern.json"),
           "-o", str(calib)]),
-        ("nurbscan.reconstruct", "reconstruct (issue 7)", "reconstruct every view",
+        ("reconstruct every view",
          ["reconstruct", str(scan), "--calib", str(calib), "-o", str(model)]),
-        ("nurbscan.export", "export (issue 8)", "export the model for VR (glb)",
+        ("export the model for VR (glb)",
          ["export", str(model), "--format", "glb", "-o", str(out / "teapot.glb")]),
-        ("nurbscan.evaluate", "evaluate (issue 7)", "evaluate against the truth (Table I)",
+        ("evaluate against the truth (Table I)",
          ["evaluate", str(model), "--truth", str(scan / "truth"),
           "-o", str(out / "evaluation.json")]),
-        ("nurbscan.report", "report (issue 8)", "write the scan report",
+        ("write the scan report",
          ["report", str(model), "-o", str(out / "report.html"),
           "--evaluation", str(out / "evaluation.json")]),
     ]
-    missing = []
     pending = None  # the export runs in a second process beside the evaluation and report
-    for module, stage, title, argv in plan:
-        if missing or not _available(module):
-            missing.append(stage)
-            continue
+    for title, argv in plan:
         if argv[0] == "export":
             step(title + " (in the background)")
             pending = in_background(_cli, argv)
@@ -112,6 +104,4 @@ def run(args: argparse.Namespace) -> int:
         if status:
             return status
     step("done")
-    if missing:
-        print("nurbscan demo: stages not built yet: " + ", ".join(missing), file=sys.stderr)
     return 0
