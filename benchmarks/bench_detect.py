@@ -6,6 +6,11 @@ returns a dict with
 
 * ``seconds`` / ``seconds_warm``: wall time of :func:`nurbscan.detect.detect_grid` on the 1x
   image (grid + white, uint8), first call and second call in a fresh process;
+* ``cpu_seconds_warm``: the process's CPU time of the second call (less disturbed than the wall
+  time by other work on a shared machine);
+* ``stages_warm_s``: the second call's wall time per stage (``detect_grid``'s ``timings``:
+  normalise, edges, chains, reading, decoding, families, refine, intersections, checks,
+  result);
 * ``peak_mb``: peak resident memory of that process (``ru_maxrss``; the images themselves
   included);
 * per noise level (``noise0``, ``noise1``, ``noise3``): the figures of
@@ -83,10 +88,14 @@ def _timed_child(path: str) -> dict:
         t0 = time.perf_counter()
         detect_grid(grid, pattern, white)
         t1 = time.perf_counter()
-        detect_grid(grid, pattern, white)
+        stages: dict = {}
+        c1 = time.process_time()
+        detect_grid(grid, pattern, white, timings=stages)
         t2 = time.perf_counter()
+        c2 = time.process_time()
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # kB -> MB (Linux)
-    return {"seconds": t1 - t0, "seconds_warm": t2 - t1, "peak_mb": peak}
+    return {"seconds": t1 - t0, "seconds_warm": t2 - t1, "cpu_seconds_warm": c2 - c1,
+            "peak_mb": peak, "stages_warm_s": stages}
 
 
 def figures(path: Path, jpeg: int | None = None) -> dict[str, float]:

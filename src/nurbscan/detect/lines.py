@@ -115,11 +115,13 @@ def fit_lines(t: np.ndarray, v: np.ndarray, wts: np.ndarray):
     Returns c0, c1 (G,) and the weight sums (G,); c0, c1 are finite only where at least two
     distinct ``t`` carry weight.
     """
+    wt = wts * t  # (wts * t * t is evaluated as (wts * t) * t: the same numbers)
     sw = wts.sum(1)
-    st = (wts * t).sum(1)
-    stt = (wts * t * t).sum(1)
+    st = wt.sum(1)
+    stt = (wt * t).sum(1)
     sv = (wts * v).sum(1)
-    stv = (wts * t * v).sum(1)
+    stv = (wt * v).sum(1)
+    del wt
     det = sw * stt - st * st
     with np.errstate(all="ignore"):
         c1 = (sw * stv - st * sv) / det
