@@ -2,7 +2,7 @@
 
 Runs the detector on the 7.1 MP teapot view 0 at 1x noise (``bench_detect.render``, cached)
 with the default options and with the option sets of ``nurbscan reconstruct``
-(:func:`nurbscan.reconstruct.pipeline.detect_options`, the true rig's epipolar constraint) and
+(:data:`nurbscan.reconstruct.pipeline.DETECT_OPTIONS`, the true rig's epipolar constraint) and
 of ``nurbscan calibrate`` (:data:`nurbscan.calibrate.pipeline.DETECT_OPTIONS`), and on the
 views of ``tests/test_detect.py`` (the warped synthetic view with and without its white
 image, the 1280 x 960 teapot, the oblique and the sheared views, a 640 x 480 view with bands

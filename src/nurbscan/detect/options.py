@@ -10,7 +10,16 @@ their measured reasons. Callers say what they change by name::
 Field names are unique across the groups, so :meth:`DetectOptions.replace` takes them
 without their group. ``to_dict`` / ``from_dict`` give the JSON round trip (nested by group).
 The tuning that nothing changes is kept in named module constants beside the stage that uses
-it (e.g. :data:`nurbscan.detect.labels.INTERPOLATION_ROUNDS`).
+it; the option docs below name them in capitals: :mod:`~nurbscan.detect.chains`
+(``SIGMA_ALONG``), :mod:`~nurbscan.detect.crossings` (``WIDTH_TOL``, ``DARK_LEVEL``),
+:mod:`~nurbscan.detect.labels` (``MIN_CONSENSUS``, ``PROPAGATION_ROUNDS``,
+``COLLINEAR_UNKNOWN``, ``POOL_TOL``, ``LINE_WIDTH_TOL``, ``INTERPOLATION_ROUNDS``,
+``INTERPOLATION_SPAN``, ``INTERPOLATION_TOL``, ``REQUIRE_COLOUR``),
+:mod:`~nurbscan.detect.families` (``FIT_RADIUS``, ``FIT_RMS``, ``FIT_TOL``,
+``EPIPOLAR_RADIUS``, ``EPIPOLAR_ROUNDS``), :mod:`~nurbscan.detect.refine`
+(``CROSSING_MARGIN``, ``KEEP_UNPAIRED``, ``UNREFINED``, ``TAIL_RESIDUAL``,
+``TAIL_RESIDUAL_EPIPOLAR``), :mod:`~nurbscan.detect.checks` (``PLANE_K``, ``PLANE_TOL``) and
+:mod:`~nurbscan.detect.core` (``CORNER_RESIDUAL``).
 """
 
 from __future__ import annotations
@@ -65,7 +74,7 @@ class ImageOptions(_Group):
         ``reconstruct`` and ``calibrate``, pass it). Its colour channels' edges are blurred
         and displaced: the edge signal then weighs the channels as JPEG's own luma
         (``LUMA_601``, full resolution; :func:`~nurbscan.detect.normalize.normalize`'s
-        ``weights``) and the points are not re-measured per channel (``refine`` False). 7.1 MP
+        ``weights``) and the points are not re-measured per channel (no ``refine``). 7.1 MP
         teapot view at 1x noise through JPEG 4:2:0 at quality 95: RMS 0.104 px (1 wrong
         line over 20 px) -> 0.080 px without the re-measurement -> 0.069 px with the luma
         weights too, no wrong line, coverage 0.668 -> 0.668 -> 0.666; 4:2:2: 0.078 -> 0.068
@@ -114,14 +123,14 @@ class EdgeOptions(_Group):
         but the edge's row (column) profile still peaks) are not traced. Where the bands are
         resolved (``FINE_BAND_PX``), after every filter and the grid intersections, those of at
         least ``min_strength`` extend the final lines they continue (:func:`extend_lines`), each
-        kept when it lies within ``corner_residual`` camera px of the straight line through its
+        kept when it lies within ``CORNER_RESIDUAL`` camera px of the straight line through its
         line's other points within 6 chain positions. The lines, their labels and the
         intersections stay as they are. 1 disables (``nurbscan reconstruct`` does: with its
         point filters off they reached the curve fits unchecked, Gordon coverage 90.09 -> 89.86
         %; and the calibration, whose points are all fitted). 7.1 MP teapot view 0 at 1x noise:
         coverage 0.6666 -> 0.6863 (within 2 px of a crossing band 0.448 -> 0.531), RMS 0.0458 ->
         0.0468 px; demo scan views 0-7: coverage 0.6910 -> 0.7123, RMS 0.0442 -> 0.0453 px,
-        labels unchanged; 1280 x 960 teapot: 0.542 -> 0.571 (``corner_residual`` 0.15: view 0
+        labels unchanged; 1280 x 960 teapot: 0.542 -> 0.571 (``CORNER_RESIDUAL`` 0.15: view 0
         0.6907, RMS 0.048 px). Tracing them instead (``dominance=0.5``: 0.6918 on view 0) let a
         squeezed spout side take a body edge's band across the depth step (two wrong lines over
         20 px in demo view 5).
@@ -223,7 +232,7 @@ class ReadingOptions(_Group):
         coverage 0.7592 -> 0.7841, RMS 0.0398 -> 0.0429 px, intersections 0.174 -> 0.165 px;
         at 0x 0.7824 -> 0.7986, 0.0275 -> 0.0284 px; at 3x 0.6800 -> 0.6966, 0.0687 -> 0.0701
         px; demo scan views 0-7: 0.7885 -> 0.8029, RMS 0.0388 -> 0.0416 px (at most 0.0446,
-        with ``tail_residual`` 3), labels 100 %, no wrong line; a view sheared by 40 degrees
+        with ``TAIL_RESIDUAL`` 3), labels 100 %, no wrong line; a view sheared by 40 degrees
         (``tests/test_detect.py``): 0.717 -> 0.842 (0.722 -> 0.843 with the default
         ``min_checked_length``). About 0.2 s more on a 7.1 MP view.
     corner_keep : float
@@ -232,8 +241,8 @@ class ReadingOptions(_Group):
         all (with ``dominance < 1`` use 1: the corner pixels then serve only tracing and
         labelling).
     min_width : float
-        (This and ``keep_unpaired``, ``partner_drops``, ``min_row_support``,
-        ``max_row_residual``, ``keep_unsupported``, ``interpolation_rounds``,
+        (This and ``KEEP_UNPAIRED``, ``partner_drops``, ``min_row_support``,
+        ``max_row_residual``, ``keep_unsupported``, ``INTERPOLATION_ROUNDS``,
         ``collinear_rounds`` and ``pool_gap`` apply where the bands are resolved, at least
         ``FINE_BAND_PX`` = 4 px wide; narrower bands use the plain rules: no unpaired points,
         no width, partner or row checks, no labels by interpolation, unknown colours or
@@ -266,7 +275,7 @@ class DecodeOptions(_Group):
     pool_gap : float
         Pool the window votes of the pieces of one edge before they are decided
         (:func:`pooled_labels`): pieces are joined across gaps up to ``pool_gap`` times
-        ``join_gap`` whose end fits predict each other within ``pool_tol`` camera px (looser
+        ``join_gap`` whose end fits predict each other within ``POOL_TOL`` camera px (looser
         than the joins that carry labels: a wrong join here only mixes votes, which then
         disagree). ``pool_gap=0`` disables. On the teapot's lid the tilted vertical bands cut
         every horizontal edge into cell-long pieces, none with votes from three window
@@ -296,9 +305,9 @@ class FamilyOptions(_Group):
         Rounds of labels from the family's own camera-to-projector map, after the colour
         windows, their propagation and :func:`interpolate_labels`, where the bands are
         resolved: every point of an unlabelled line gets its projector coordinate from a
-        local plane through the labelled points of its family within ``fit_radius`` camera
+        local plane through the labelled points of its family within ``FIT_RADIUS`` camera
         pitches (:func:`family_coordinates`; none where their RMS residual exceeds
-        ``fit_rms`` projector px or where it would extrapolate), the candidate edge must
+        ``FIT_RMS`` projector px or where it would extrapolate), the candidate edge must
         agree with the edge count of the point's row (column) towards its labelled
         neighbours (:func:`row_consistent`) or, with ``read_along`` "grid", of its grid run
         (a pixel column through slanted bands of the other family misses the edges hidden
@@ -306,7 +315,7 @@ class FamilyOptions(_Group):
         0.0439 px; 0x 0.8097 -> 0.8137; 3x 0.7100 -> 0.7153, 0.0716 -> 0.0740 px; demo
         scan views 0-7 0.8132 -> 0.8155, RMS 0.0421 -> 0.0424 px, worst view 0.0449 ->
         0.0456 px, no wrong line), and a line takes the band its points vote for
-        within ``fit_tol`` pitches, with the points that fit no edge voting against
+        within ``FIT_TOL`` pitches, with the points that fit no edge voting against
         (:func:`epipolar_labels` with ``dissent``) and its colour not contradicting it. 0
         disables (``nurbscan reconstruct`` does: with the rig the epipolar prediction labels
         these pieces, and the two together gave Gordon coverage 90.09 -> 90.01 %). 7.1 MP
@@ -369,7 +378,7 @@ class RefineOptions(_Group):
     partner_drops : {"unmeasured", "all", "none"}
         After the refinement, drop a point whose crossing's other edge point (same row, same
         band) was dropped: "all" whatever dropped it, "unmeasured" only when it went for
-        want of a clean re-measurement (``unrefined``), "none" never. A partner dropped as a
+        want of a clean re-measurement (``UNREFINED``), "none" never. A partner dropped as a
         kink off its re-measured neighbours (``refit_residual``, a disturbed corner on its
         side of the band) leaves the point alone with "unmeasured": 7.1 MP teapot view 0 at
         1x noise, coverage 0.7525 ("all") -> 0.7592, RMS 0.0394 -> 0.0398 px, intersections
@@ -423,8 +432,8 @@ class CheckOptions(_Group):
     plane_radius : float
         Before those three filters, a point without support in its row (column) or farther
         than ``max_row_residual`` from its row's extrapolation is supported after all when
-        it lies within ``plane_tol`` camera px of the edge that a plane through the
-        ``plane_k`` nearest points of other lines of its family, within ``plane_radius``
+        it lies within ``PLANE_TOL`` camera px of the edge that a plane through the
+        ``PLANE_K`` nearest points of other lines of its family, within ``plane_radius``
         pattern pitches, predicts (:func:`plane_support`): where the other family's bands
         slant across a surface (the teapot's lower body) they hide a piece's neighbours in
         most of its rows, and where the band spacing changes along a row its extrapolation
@@ -451,7 +460,7 @@ class CheckOptions(_Group):
         (:func:`grid_consistency`); 0 (default) keeps them. Half a pitch (about 12 px on
         the teapot views) once dropped a 9 px piece read as the other family's at the bottom
         of the teapot (demo scan view 4, RMS 0.0417 -> 0.0523 px without the check); the end
-        test ``tail_residual`` and the grid runs (``read_along``) now keep such pieces out,
+        test ``TAIL_RESIDUAL`` and the grid runs (``read_along``) now keep such pieces out,
         and the check drops mostly exact short pieces (7.1 MP teapot view 0 at 1x noise:
         the 4,398 points it drops have p95 error 0.157 px against 0.099 px for the points
         kept, RMS 0.22 px from a few outliers; coverage 0.7841 -> 0.7942, RMS 0.0429 ->
