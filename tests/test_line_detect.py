@@ -300,3 +300,32 @@ def test_centre_lines_round_trip_and_overlay(tmp_path):
     d, t = got[k] - base[k], want - base[k]
     assert np.abs(d).sum() > 60  # drawn (anti-aliased, so blended with the photograph)
     assert d @ t / (np.linalg.norm(d) * np.linalg.norm(t)) > 0.9  # toward the band's colour
+
+
+def test_cli_detect_reads_a_thin_line_pattern(tmp_path, capsys):
+    """`nurbscan pattern --from-image` then `nurbscan detect` on a photograph of thin lines:
+    centre-lines written with an overlay; a photograph without the grid is a one-line error,
+    exit 2, nothing written."""
+    from _line_synth import default_homography, render_photo
+    from nurbscan.cli import main
+    from nurbscan.detect import load_detection
+    from nurbscan.io import write_image
+
+    pat = real_pattern()
+    write_image(tmp_path / "projected.png", pat.render())
+    hmat = default_homography()
+    write_image(tmp_path / "grid.png", render_photo(pat, hmat, seed=7))
+    write_image(tmp_path / "white.png", render_photo(pat, hmat, white=True, seed=8))
+    assert main(["pattern", "--from-image", str(tmp_path / "projected.png"),
+                 "-o", str(tmp_path / "pattern.json")]) == 0
+    assert main(["detect", str(tmp_path / "grid.png"), "--white", str(tmp_path / "white.png"),
+                 "--pattern", str(tmp_path / "pattern.json"), "-o", str(tmp_path / "lines.json"),
+                 "--overlay", str(tmp_path / "overlay.png")]) == 0
+    r = load_detection(tmp_path / "lines.json")
+    assert r.nlines > 40 and np.all(r.edge == 2) and (tmp_path / "overlay.png").is_file()
+    capsys.readouterr()
+    assert main(["detect", str(tmp_path / "white.png"), "--pattern",
+                 str(tmp_path / "pattern.json"), "-o", str(tmp_path / "none.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "white.png: no grid found" in err and "\n" not in err
+    assert not (tmp_path / "none.json").exists()

@@ -13,8 +13,11 @@ def register(sub) -> None:
         description=(
             "Find the sub-pixel edges of the projected colour grid in IMAGE, chain them into "
             "lines, label each line with its band index and edge by decoding the PRMVS colour "
-            "windows, and write the lines and grid intersections to a JSON file. An image in "
-            "which no grid line can be decoded is an error (exit status 2)."
+            "windows, and write the lines and grid intersections to a JSON file. With a "
+            "pattern of thin coloured lines (a sidecar from 'nurbscan pattern --from-image') "
+            "the lines' sub-pixel centres are found and decoded instead (colours learned from "
+            "the photograph). An image in which no grid line can be decoded is an error "
+            "(exit status 2)."
         ),
     )
     p.add_argument("image", help="photograph of the object under the grid (PNG, TIFF, JPEG)")
@@ -36,12 +39,22 @@ def run(args: argparse.Namespace) -> int:
     """Detect the grid in one image; returns the exit status."""
     import warnings
 
-    from ..detect import DetectOptions, detect_grid, draw_overlay
+    from ..detect import (
+        DetectOptions,
+        detect_grid,
+        detect_lines,
+        draw_line_overlay,
+        draw_overlay,
+    )
     from ..errors import NurbscanError
     from ..io import chroma_subsampled, read_image, write_image
-    from ..pattern import load_pattern
+    from ..pattern import LinePattern, load_pattern
 
     pattern = load_pattern(args.pattern)
+    thin = isinstance(pattern, LinePattern)
+    if thin and args.calib:
+        raise NurbscanError(f"{args.pattern}: --calib (epipolar decoding) is only for nurbscan's "
+                            "own band grids, not for a pattern of thin lines")
     image = read_image(args.image, as_float=False)
     epipolar = None
     if args.calib:
@@ -67,16 +80,21 @@ def run(args: argparse.Namespace) -> int:
               "more accurate edges)", file=sys.stderr)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        options = DetectOptions().replace(gamma=args.gamma, sigma=args.sigma,
-                                          chroma_subsampled=subsampled)
-        result = detect_grid(image, pattern, white, options, epipolar=epipolar)
+        if thin:
+            result = detect_lines(image, pattern, white)
+        else:
+            options = DetectOptions().replace(gamma=args.gamma, sigma=args.sigma,
+                                              chroma_subsampled=subsampled)
+            result = detect_grid(image, pattern, white, options, epipolar=epipolar)
     if result.nlines == 0:
         raise NurbscanError(f"{args.image}: " + (result.warnings[0] if result.warnings
                                                   else "no grid line decoded"))
     result.save(args.output)
     if args.overlay:
-        write_image(args.overlay, draw_overlay(image, result, pattern))
+        draw = draw_line_overlay if thin else draw_overlay
+        write_image(args.overlay, draw(image, result, pattern))
     nv = int((result.direction == 0).sum())
-    print(f"{args.output}: {nv} vertical and {result.nlines - nv} horizontal edge lines, "
-          f"{len(result.x)} edge points, {len(result.cam)} grid intersections", file=sys.stderr)
+    kind = "centre" if thin else "edge"
+    print(f"{args.output}: {nv} vertical and {result.nlines - nv} horizontal {kind} lines, "
+          f"{len(result.x)} {kind} points, {len(result.cam)} grid intersections", file=sys.stderr)
     return 0
