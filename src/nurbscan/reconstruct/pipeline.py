@@ -21,8 +21,8 @@ from .._parallel import process_map
 from ..errors import NurbscanError
 from ..io import chroma_subsampled, read_image
 from ..io.atomic import read_json
+from ..merge.frame import curve_to_object, rig_to_object, surface_to_object
 from .light import compare_light_surfaces, other_coordinate
-from .merge import curve_to_object, rig_to_object, surface_to_object
 from .model import Model
 from .view import ViewResult, reconstruct_view
 
