@@ -57,3 +57,20 @@ def surface_to_object(surface: NurbsSurface, turntable, angle: float) -> NurbsSu
     return NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u, surface.knots_v,
                         rig_to_object(surface.control_points, turntable, angle),
                         surface.weights)
+
+
+def moved_points(points, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Points (..., 3) moved rigidly, ``R X + t`` (mm)."""
+    return np.asarray(points, float) @ np.asarray(R, float).T + np.asarray(t, float)
+
+
+def moved_curve(curve: NurbsCurve, R: np.ndarray, t: np.ndarray) -> NurbsCurve:
+    """A curve moved rigidly (control points mapped, weights kept)."""
+    return NurbsCurve(curve.degree, curve.knots, moved_points(curve.control_points, R, t),
+                      curve.weights)
+
+
+def moved_surface(surface: NurbsSurface, R: np.ndarray, t: np.ndarray) -> NurbsSurface:
+    """A surface moved rigidly (control points mapped, weights kept)."""
+    return NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u, surface.knots_v,
+                        moved_points(surface.control_points, R, t), surface.weights)
