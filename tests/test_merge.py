@@ -157,8 +157,8 @@ def test_model_json_records_the_registration(tmp_path, teapot_views):
     assert doc["meta"]["merge"]["registration"]["applied"]
     for entry in doc["views"]:
         v = entry["index"]
-        assert abs(entry["registration"]["axis_angle_deg"] - delta[v]) < 0.02
-        assert abs(np.degrees(entry["registered_table_angle"]) - 45 * v) < 0.02
+        assert abs(entry["registration"]["axis_angle_deg"] - delta[v]) < 0.05
+        assert abs(np.degrees(entry["registered_table_angle"]) - 45 * v) < 0.05
         # the registered pose maps the rig into the object frame: a point of the object at
         # the true angle, seen in the rig, comes back to itself
         X = np.array([[30.0, -20.0, 50.0]])
@@ -168,3 +168,86 @@ def test_model_json_records_the_registration(tmp_path, teapot_views):
     m2 = load_model(tmp_path / "model")
     scene = make_scene("teapot")
     assert np.mean(scene.distance(m2.points[::50])) < 0.02
+
+
+# ---------------------------------------------------------------------- end to end
+@pytest.fixture(scope="module")
+def table_scan(tmp_path_factory):
+    """A 640 x 480, 2-view teapot scan on a grey table top (albedo 0.3) with a coarse grid
+    (pitch 32, band 12 projector px), reconstructed with the true rig, not merged."""
+    from nurbscan.camera import load_rig
+    from nurbscan.pattern import Pattern
+    from nurbscan.reconstruct import reconstruct_scan
+    from nurbscan.simulate.render import RenderSettings
+    from nurbscan.simulate.rig import default_rig, scale_camera
+    from nurbscan.simulate.scan import simulate_scan
+
+    out = tmp_path_factory.mktemp("table") / "scan"
+    simulate_scan(make_scene("teapot"), out, views=2, rig=scale_camera(default_rig(), 640, 480),
+                  calibration=False, settings=RenderSettings(samples=2, table_albedo=(0.3,) * 3),
+                  pattern=Pattern.create(1920, 1080, pitch=32, band=12))
+    model = reconstruct_scan(out, load_rig(out / "truth" / "rig.json"), merge=None)
+    return out, model
+
+
+def _gordon_samples(model, k=9):
+    grid = np.linspace(0, 1, k)
+    out = []
+    for s in model.surfaces_of("gordon"):
+        S = s["surface"]
+        (u0, u1), (v0, v1) = S.domain
+        uu, vv = np.meshgrid(u0 + (u1 - u0) * grid, v0 + (v1 - v0) * grid, indexing="ij")
+        out.append(S.evaluate(uu.ravel(), vv.ravel()))
+    return out
+
+
+def test_table_top_is_left_out(table_scan):
+    """With a visible table top, reconstruct models the table as Gordon patches; the merge
+    stage leaves every one of them out and keeps the teapot's (oracle: the exact teapot)."""
+    import copy
+
+    from nurbscan.merge import leave_out_table
+
+    _, model = table_scan
+    scene = make_scene("teapot")
+    before = _gordon_samples(model)
+    on_table = [np.median(X[:, 2]) < 1.0 for X in before]
+    on_teapot = [np.median(scene.distance(X)) < 0.2 for X in _gordon_samples(model, 3)]
+    assert sum(on_table) >= 20, sum(on_table)
+    m = copy.deepcopy(model)
+    counts = leave_out_table(m)
+    after = _gordon_samples(m)
+    assert counts["patches_removed"] >= sum(on_table) and counts["points_removed"] > 0
+    assert counts["patches"] - counts["patches_removed"] == len(after)
+    assert not any(np.median(X[:, 2]) < 1.0 for X in after)
+    assert all(np.mean(X[:, 2] <= 0.5) <= 0.25 for X in after)
+    assert len(after) >= 0.9 * sum(t and not b for t, b in zip(on_teapot, on_table,
+                                                               strict=True))
+    assert np.all(m.points[:, 2] > 0.5) and np.all(m.edge_points[:, 2] > 0.5)
+    # three surfaces (Gordon and both skins) per patch, all of the same patches
+    keys = {(s["view"], s["patch"]) for s in m.surfaces}
+    assert len(m.surfaces) == 3 * len(keys) == 3 * len(after)
+
+
+def test_simulate_table_albedo_renders_a_visible_table(tmp_path):
+    """`simulate --table-albedo 0.3`: the table top's pixels (truth surface id -2) are ten
+    times as bright as the default (albedo 0.03); outside [0, 1] is a one-line error."""
+    import cv2
+
+    from nurbscan.cli import main
+
+    args = ["simulate", "sphere", "--views", "1", "--width", "160", "--height", "120",
+            "--no-calibration", "--noise", "0", "--workers", "1"]
+    assert main(args + ["-o", str(tmp_path / "dark")]) == 0
+    assert main(args + ["-o", str(tmp_path / "grey"), "--table-albedo", "0.3"]) == 0
+    render = json.loads((tmp_path / "grey" / "truth" / "render.json").read_text())
+    assert render["table_albedo"] == [0.3, 0.3, 0.3]
+    sid = np.load(tmp_path / "grey" / "truth" / "view_00.npz")["surface_id"]
+    table = sid == -2
+    assert table.sum() > 500
+    lum = {k: cv2.imread(str(tmp_path / k / "views" / "view_00_white.png")).astype(float)
+           for k in ("dark", "grey")}
+    ratio = lum["grey"][table].mean() / max(lum["dark"][table].mean(), 1e-9)
+    assert ratio > 2.5, ratio  # gamma 2.2: (10x)^(1/2.2) = 2.85
+    assert main(args + ["-o", str(tmp_path / "bad"), "--table-albedo", "1.5"]) == 2
+    assert not (tmp_path / "bad" / "scan.json").exists()
