@@ -77,15 +77,16 @@ class RegistrationOptions:
     max_translation : float
         Largest translation (mm) that is not divergence.
     max_misclosure : float
-        Largest angle (degrees) by which the optimised poses may differ from a trusted pair's
-        own ICP result. Beyond it the overlaps disagree: the surface does not fix the poses
-        (640 x 480 teapot scan: up to 1.15 degrees; 1024 x 768: 0.13 degrees) and every view
-        keeps its unregistered pose.
+        Largest angle (degrees) by which the optimised poses may differ from the own ICP
+        result of a pair of neighbouring views (in table angle; kept by the line process).
+        Beyond it the overlaps disagree: the surface does not fix the poses (640 x 480 teapot
+        scan: up to 1.15 degrees; 1024 x 768: 0.13 degrees) and every view keeps its
+        unregistered pose.
     anchor : int or None
         View index kept as given (default the first view).
     """
 
-    voxel: float = 0.7
+    voxel: float = 1.0
     normal_radius: float = 3.0
     distances: tuple[float, ...] = (3.0, 1.5, 1.0, 0.7)
     iterations: int = 30
@@ -262,7 +263,7 @@ def register_views(clouds: dict, options: RegistrationOptions = RegistrationOpti
            if max(abs(c.axis_angle), c.other_angle) > options.max_angle
            or np.linalg.norm(c.translation) > options.max_translation]
     applied = len(linked) > 1
-    trusted = [p for p in pairs if p.get("confidence", 0.0) >= 0.5]
+    trusted = [p for p in pairs if p.get("neighbours") and p.get("confidence", 0.0) >= 0.5]
     worst_pair = max(trusted, key=lambda p: p["misclosure_deg"], default=None)
     if not bad and worst_pair is not None and \
             worst_pair["misclosure_deg"] > options.max_misclosure:
@@ -452,6 +453,7 @@ def _pose_graph(views: list, pairs: list, anchor: int,
     for p in pairs:
         # neighbours in table angle (index order) are trusted, the others may be pruned
         near = abs(order[p["source"]] - order[p["target"]]) in (1, len(views) - 1)
+        p["neighbours"] = bool(near)
         g.edges.append(reg.PoseGraphEdge(node[p["source"]], node[p["target"]], p["T"],
                                          p["H"], uncertain=not near))
     opt = reg.GlobalOptimizationOption(max_correspondence_distance=options.distances[-1],

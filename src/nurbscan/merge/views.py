@@ -101,11 +101,13 @@ def merge_views(model, turntable, options: MergeOptions | None = None,
         apply_registration(model, reg, turntable)
         out["registration"] = {k: v for k, v in reg.to_dict().items() if k != "corrections"}
         out["warnings"] += reg.warnings
-        worst = max(reg.corrections.values(), key=lambda c: abs(c.axis_angle), default=None)
-        if reg.applied and worst is not None:
+        if reg.applied:
             say(f"merge: registered {len(reg.corrections) - len(reg.unregistered)} views on "
-                f"{len(reg.pairs)} overlapping pairs; largest turn about the axis "
-                f"{worst.axis_angle:+.3f} degrees (view {worst.view})")
+                f"{len(reg.pairs)} overlapping pairs")
+            for c in reg.corrections.values():
+                say(f"merge: view {c.view}: {c.axis_angle:+.4f} degrees about the axis, "
+                    f"{c.other_angle:.4f} degrees otherwise, "
+                    f"{np.linalg.norm(c.translation):.4f} mm")
     for w in out["warnings"]:
         say(f"merge: warning: {w}")
         _warnings.warn(w, MergeWarning, stacklevel=2)
