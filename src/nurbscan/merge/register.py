@@ -254,6 +254,9 @@ def register_views(clouds: dict, options: RegistrationOptions = RegistrationOpti
     if len(linked) > 1:
         poses = _pose_graph(sorted(linked), pairs, anchor, options)
         for v, T in poses.items():
+            # Open3D's threaded sums differ in the last bits from run to run: rounded to
+            # 1e-12 (mm, rad) the corrections, and so the models, are reproducible
+            T = np.round(T, 12)
             if not axis_ok:
                 alpha, _ = twist_swing(T[:3, :3])
                 T = T.copy()
