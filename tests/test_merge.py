@@ -85,9 +85,11 @@ def test_registration_recovers_perturbed_table_angles(teapot_views):
         assert np.mean(scene.distance(Q)) < np.mean(scene.distance(exact)) + 0.005
 
 
-def test_revolution_surface_keeps_the_given_angles():
-    """A sphere on the axis cannot fix the turn about the axis: said so, angles as given."""
-    views = _views("sphere")
+@pytest.mark.parametrize("scene", ["sphere", "cylinder"])
+def test_revolution_surface_keeps_the_given_angles(scene):
+    """A sphere or a cup on the axis cannot fix the turn about the axis: said so, angles as
+    given."""
+    views = _views(scene)
     delta = {v: 0.0 if v == 0 else 1.0 for v in views}
     reg = register_views(_perturbed(views, delta), FAST)
     assert not reg.axis_determined and reg.axis_information < 1e-4

@@ -397,12 +397,14 @@ def _pairwise(pcd: dict, options: RegistrationOptions) -> list[dict]:
                 continue
             T, res = _icp(src, tgt, options, np.eye(4))
             H, n = _hessian(src, tgt, T, fine)
-            c = Correction.of(j, T)
-            # an ICP that ran far away (a turn to another side of the object) is no overlap
-            if (n < need or max(abs(c.axis_angle), c.other_angle) > 3 * options.max_angle
-                    or np.linalg.norm(c.translation) > 3 * options.max_translation):
+            if n < need:
                 continue
             T = _determined(T, H, n, radius, options.pair_information)
+            c = Correction.of(j, T)
+            # an ICP that ran far away (a turn to another side of the object) is no overlap
+            if (max(abs(c.axis_angle), c.other_angle) > 3 * options.max_angle
+                    or np.linalg.norm(c.translation) > 3 * options.max_translation):
+                continue
             out.append({"source": j, "target": i, "overlap": n / len(src.points),
                         "rmse_mm": float(res.inlier_rmse), "n": n, "T": T, "H": H})
     return out
@@ -466,13 +468,15 @@ def _pose_graph(views: list, pairs: list, anchor: int,
                             reg.GlobalOptimizationConvergenceCriteria(), opt)
     A = np.linalg.inv(np.asarray(g.nodes[node[anchor]].pose))
     poses = {v: A @ np.asarray(g.nodes[node[v]].pose) for v in views}
-    for p, e in zip(pairs, g.edges, strict=True):
+    # the line process removes the edges it prunes from the graph
+    kept = {(e.source_node_id, e.target_node_id): float(e.confidence) for e in g.edges}
+    for p in pairs:
         # how far the optimised poses are from the pair's own ICP result
         D = np.linalg.inv(p["T"]) @ np.linalg.inv(poses[p["target"]]) @ poses[p["source"]]
         p["misclosure_deg"] = float(np.degrees(np.linalg.norm(
             Rotation.from_matrix(D[:3, :3]).as_rotvec())))
         p["misclosure_mm"] = float(np.linalg.norm(D[:3, 3]))
-        p["confidence"] = float(e.confidence)
+        p["confidence"] = kept.get((node[p["source"]], node[p["target"]]), 0.0)
     return poses
 
 
