@@ -410,6 +410,16 @@ def test_reconstruct_cli_without_truth_and_evaluate(small_scan, tmp_path, capsys
                  str(tmp_path / "model"), "-q"]) == 0
     model = load_model(tmp_path / "model")
     assert len(model.views) == 2
+    # the merge stage ran: views 0 and 180 degrees apart do not overlap, which is said on
+    # stderr (also with -q); both keep their turntable poses, recorded in model.json
+    err = capsys.readouterr().err
+    assert "warning: views [1] overlap no view connected to view 0" in err, err
+    merge = model.meta["merge"]
+    assert merge["registration"]["unregistered"] == [1] and "table" in merge
+    for v in model.views:
+        assert v["registration"]["axis_angle_deg"] == 0.0
+        assert abs(v["registered_table_angle"] - v["table_angle"]) == 0.0
+        assert np.array(v["object_from_rig"]["R"]).shape == (3, 3)
     # the detected lines of each view as a picture: the decoded lines are drawn in full
     # colour over the photograph dimmed to 35 % (at most 89 of 255 alone)
     import cv2

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+import warnings
 from pathlib import Path
 
 
@@ -15,7 +16,8 @@ def register(sub) -> None:
         description=(
             "Detect the grid in every view of a scan folder, triangulate its labelled edge "
             "lines with the calibrated rig, build the curve network, skins and Gordon "
-            "surfaces, merge the views in the turntable frame and write the model folder "
+            "surfaces, merge the views in the turntable frame (the table left out, the "
+            "views' poses registered against each other) and write the model folder "
             "(model.json, points.npz, model.png, overlays/view_KK_overlay.png with the "
             "detected lines of each view; docs/model-format.md). Never reads truth/."))
     p.add_argument("scan", type=Path, help="scan folder (with scan.json)")
@@ -30,6 +32,15 @@ def register(sub) -> None:
     p.add_argument("--workers", type=int, default=2,
                    help="processes reconstructing views side by side, at most one per CPU "
                         "(default 2; 0 = one per CPU); the model does not depend on it")
+    p.add_argument("--no-register", action="store_true",
+                   help="keep every view where the turntable and its table angle put it")
+    p.add_argument("--keep-table", action="store_true",
+                   help="keep what lies on the table top or outside the table's cylinder")
+    p.add_argument("--table-margin", type=float, default=0.5, metavar="MM",
+                   help="height above the table plane up to which points are the table's "
+                        "(default 0.5 mm)")
+    p.add_argument("--table-radius", type=float, default=150.0, metavar="MM",
+                   help="radius of the table's cylinder about the axis (default 150 mm)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 
@@ -38,12 +49,17 @@ def run(args: argparse.Namespace) -> int:
     """Reconstruct ``args.scan`` with the rig ``args.calib`` into ``args.output``."""
     from ..camera import load_rig
     from ..errors import NurbscanError
+    from ..merge import MergeOptions, MergeWarning, RegistrationOptions, TableOptions
     from ..reconstruct import reconstruct_scan
 
     if args.workers < 0:
         raise NurbscanError(f"--workers {args.workers}: must be >= 0")
     if args.min_curves < 2:
         raise NurbscanError(f"--min-curves {args.min_curves}: must be at least 2")
+    merge = MergeOptions(
+        table=None if args.keep_table else TableOptions(margin=args.table_margin,
+                                                        radius=args.table_radius),
+        registration=None if args.no_register else RegistrationOptions())
     t0 = time.perf_counter()
     rig = load_rig(args.calib)
 
@@ -51,9 +67,14 @@ def run(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
-    model = reconstruct_scan(args.scan, rig, progress=say, views=args.views,
-                             min_curves=args.min_curves, workers=args.workers,
-                             overlays=Path(args.output) / "overlays")
+    with warnings.catch_warnings():  # printed below, also with --quiet
+        warnings.simplefilter("ignore", MergeWarning)
+        model = reconstruct_scan(args.scan, rig, progress=say, views=args.views,
+                                 min_curves=args.min_curves, workers=args.workers,
+                                 overlays=Path(args.output) / "overlays", merge=merge)
+    if args.quiet:
+        for w in model.meta.get("merge", {}).get("warnings", []):
+            print(f"nurbscan reconstruct: warning: {w}", file=sys.stderr, flush=True)
     model.meta["calibration"] = str(args.calib)
     path = model.save(args.output)
     n = {k: v for k, v in model.to_dict()["counts"].items()}

@@ -31,6 +31,10 @@ def register(sub) -> argparse.ArgumentParser:
     p.add_argument("--height", type=int, help="camera height in px (scales the camera down)")
     p.add_argument("--bit-depth", type=int, choices=(8, 16), default=8,
                    help="bits per sample of the images (default 8)")
+    p.add_argument("--table-albedo", type=float, default=None, metavar="A",
+                   help="albedo of the turntable's top, a matte disc of radius 150 mm under "
+                        "the object (0..1; default 0.03, nearly black; e.g. 0.3 for a grey "
+                        "table the grid is seen on)")
     p.add_argument("--no-calibration", action="store_true",
                    help="skip the calibration images")
     p.add_argument("--workers", type=int, default=2,
@@ -73,6 +77,10 @@ def run(args: argparse.Namespace) -> int:
         rig = scale_camera(rig, w, h)
     scene = make_scene(args.scene)
     settings = RenderSettings(bit_depth=args.bit_depth).with_noise_scale(args.noise)
+    if args.table_albedo is not None:
+        if not 0 <= args.table_albedo <= 1:
+            raise NurbscanError(f"--table-albedo {args.table_albedo}: must be in [0, 1]")
+        settings = settings.replace(table_albedo=(args.table_albedo,) * 3)
 
     def progress(line: str) -> None:
         print(f"nurbscan simulate: {line}", file=sys.stderr, flush=True)

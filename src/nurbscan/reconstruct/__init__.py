@@ -4,7 +4,7 @@
   surface) and their intersection with camera rays;
 * :mod:`.triangulate` - 2-D curves, 3-D points and 3-D curves of each labelled line;
 * :mod:`.network` - the curve network, skins and Gordon patches of a view;
-* :mod:`.view` - one view end to end; :mod:`.merge` - into the object frame;
+* :mod:`.view` - one view end to end (into the object frame: :mod:`nurbscan.merge`);
 * :mod:`.pipeline` - a whole scan folder; :mod:`.model` - the model folder.
 """
 

@@ -3,8 +3,9 @@
 :func:`reconstruct_scan` reads ``scan.json``, the pattern and each view's grid and white
 photographs (never ``truth/``), detects and decodes the grid (:func:`nurbscan.detect.detect_grid`),
 reconstructs each view in the rig frame (:func:`nurbscan.reconstruct.view.reconstruct_view`),
-moves it into the object frame with the calibrated turntable and the view's table angle, and
-collects everything into one :class:`~nurbscan.reconstruct.model.Model`.
+moves it into the object frame with the calibrated turntable and the view's table angle,
+collects everything into one :class:`~nurbscan.reconstruct.model.Model` and merges the views
+(:func:`nurbscan.merge.merge_views`: the table left out, the views registered).
 """
 
 from __future__ import annotations
@@ -22,8 +23,9 @@ from ..detect.options import DetectOptions
 from ..errors import NurbscanError
 from ..io import chroma_subsampled, read_image
 from ..io.atomic import read_json
+from ..merge import DEFAULT_MERGE, MergeOptions, merge_views
+from ..merge.frame import curve_to_object, rig_to_object, surface_to_object
 from .light import compare_light_surfaces, other_coordinate
-from .merge import curve_to_object, rig_to_object, surface_to_object
 from .model import Model
 from .view import ViewResult, reconstruct_view
 
@@ -204,7 +206,8 @@ def _view_job(job: dict):
 def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
                      progress: Callable[[str], None] | None = None,
                      views: list[int] | None = None, workers: int = 1,
-                     overlays: str | os.PathLike | None = None, **view_kwargs) -> Model:
+                     overlays: str | os.PathLike | None = None,
+                     merge: MergeOptions | None = DEFAULT_MERGE, **view_kwargs) -> Model:
     """Reconstruct every view of a scan folder and merge them in the object frame.
 
     Parameters
@@ -223,6 +226,10 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
     overlays : path-like, optional
         Folder to write each view's detected lines into (``view_KK_overlay.png``, 1536 px
         wide), the picture a person checks the decoding on.
+    merge : MergeOptions or None
+        How the views are merged once all are reconstructed (:func:`nurbscan.merge.merge_views`:
+        the table left out, the poses registered); None keeps every view where the turntable
+        puts it, table and all.
     **view_kwargs
         Passed to :func:`~nurbscan.reconstruct.view.reconstruct_view`.
     """
@@ -271,5 +278,9 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
         if "light_surface" not in model.meta and res.lines:
             model.meta["light_surface"] = light_surface_check(res, rig)
         add_view(model, res, rig, job["index"], job["angle"], t)
+    if merge is not None:
+        t_merge = time.perf_counter()
+        merge_views(model, rig.turntable, merge, progress)
+        model.meta["merge"]["merge_s"] = round(time.perf_counter() - t_merge, 3)
     model.meta["total_s"] = round(time.perf_counter() - t_all, 3)
     return model

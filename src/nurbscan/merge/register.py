@@ -1,0 +1,485 @@
+"""Registration of the views: every view's pose refined jointly against the others.
+
+The views start where the calibrated turntable and their table angles put them (the object
+frame, :mod:`.frame`). A turntable's angles are not exact, so each view gets a rigid
+correction ``C_v`` (4 x 4, object frame): ``X <- R_v X + t_v``. They are found in two steps, as
+in Open3D's multiway registration (Choi, Zhou and Koltun 2015):
+
+1. **Pairwise point-to-plane ICP** (Chen and Medioni 1992; Open3D ``registration_icp``) between
+   every two views that overlap, coarse to fine, on each view's point samples (the Gordon
+   patches') thinned to a voxel grid. The ICP's Gauss-Newton Hessian ``H = sum J^T J``,
+   ``J = [q x n, n]`` (q a target point, n its normal; twist order rotation, translation) is
+   the pair's information matrix.
+2. **Pose graph** over all views (Open3D ``global_optimization``, Levenberg-Marquardt with line
+   process), one node per view, one edge per overlapping pair; the first view (or
+   ``anchor``) is kept as given: it fixes the object frame.
+
+A surface of revolution about the turntable's axis (a sphere or a cylinder on the axis) does
+not fix a view's turn about the axis: ICP's residuals do not change with it. That shows in the
+summed Hessian: the information about the rotation about the axis that the other five motions
+do not explain (its Schur complement), per matched point and with rotations in mm at the
+points' RMS radius, is about zero. Below ``axis_information`` the turn about the axis is left
+as given (each correction's twist about the axis removed) and the result says so. Each pair's
+own correction is also kept to the motions its Hessian determines (its twist projected onto
+the eigenvectors of the scaled Hessian above ``pair_information``), so that a pair's
+undetermined motions (a sphere's turn about its centre) do not reach the pose graph as noise.
+
+Bad input gives warnings, never an error: a view that overlaps no other view keeps its pose;
+a correction over ``max_angle`` degrees or ``max_translation`` mm means the registration
+diverged, and optimised poses farther than ``max_misclosure`` from a trusted pair's own ICP
+result mean that the overlaps disagree (too little of the surface fixes the turn): in both
+cases every view keeps its unregistered pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from ..errors import NurbscanError
+
+
+@dataclass(frozen=True)
+class RegistrationOptions:
+    """Settings of :func:`register_views`.
+
+    Attributes
+    ----------
+    voxel : float
+        Voxel size (mm) each view's points are thinned to (Open3D ``voxel_down_sample``).
+    normal_radius : float
+        Radius (mm) of the neighbourhood that a point's normal is estimated from when a view
+        comes without normals.
+    distances : tuple of float
+        The ICP's largest correspondence distance at each level, coarse to fine (mm). The
+        first must exceed the views' initial misalignment (2 degrees at 80 mm from the axis:
+        2.8 mm).
+    iterations : int
+        ICP iterations per level.
+    min_overlap : float
+        Two views overlap when at least this share of the smaller view's samples finds a
+        partner within the finest distance (and ``min_points`` samples do).
+    min_points : int
+        See ``min_overlap``.
+    pair_information : float
+        Relative eigenvalue of a pair's scaled Hessian below which a pair's motion is taken
+        as undetermined (module notes).
+    axis_information : float
+        Information about the turn about the axis per matched point (scaled, module notes)
+        below which the turn is undetermined: about the square of the RMS normal component
+        along the turn that no other motion explains. Teapot 0.01-0.02, sphere and cylinder
+        1e-5.
+    max_angle : float
+        Largest correction (degrees, about the axis or otherwise) that is not divergence.
+    max_translation : float
+        Largest translation (mm) that is not divergence.
+    max_misclosure : float
+        Largest angle (degrees) by which the optimised poses may differ from the own ICP
+        result of a pair of neighbouring views (in table angle; kept by the line process).
+        Beyond it the overlaps disagree: the surface does not fix the poses (640 x 480 teapot
+        scan: up to 1.15 degrees; 1024 x 768: 0.13 degrees) and every view keeps its
+        unregistered pose.
+    anchor : int or None
+        View index kept as given (default the first view).
+    """
+
+    voxel: float = 1.0
+    normal_radius: float = 3.0
+    distances: tuple[float, ...] = (3.0, 1.5, 1.0, 0.7)
+    iterations: int = 30
+    min_overlap: float = 0.1
+    min_points: int = 100
+    pair_information: float = 1e-4
+    axis_information: float = 1e-3
+    max_angle: float = 5.0
+    max_translation: float = 5.0
+    max_misclosure: float = 0.3
+    anchor: int | None = None
+
+    def __post_init__(self) -> None:
+        if not (self.voxel > 0 and self.distances and all(d > 0 for d in self.distances)):
+            raise NurbscanError("registration: voxel and distances must be > 0 mm")
+        if self.iterations < 1 or self.min_points < 3:
+            raise NurbscanError("registration: iterations >= 1 and min_points >= 3 required")
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict."""
+        d = asdict(self)
+        d["distances"] = list(self.distances)
+        return d
+
+
+@dataclass(frozen=True)
+class Correction:
+    """One view's rigid correction in the object frame, ``X <- R X + t``.
+
+    ``axis_angle`` is its turn about the turntable's axis (the twist of ``R`` about ``z``,
+    degrees; the view's table angle was ``axis_angle`` too large), ``other_angle`` the rest of
+    the rotation (degrees), ``translation`` ``t`` (mm).
+    """
+
+    view: int
+    matrix: np.ndarray = field(repr=False)
+    axis_angle: float = 0.0
+    other_angle: float = 0.0
+    translation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @classmethod
+    def of(cls, view: int, matrix: np.ndarray) -> Correction:
+        """Decompose a 4 x 4 correction (swing-twist about ``z``)."""
+        alpha, other = twist_swing(matrix[:3, :3])
+        return cls(int(view), np.asarray(matrix, float), float(np.degrees(alpha)),
+                   float(np.degrees(other)), tuple(float(x) for x in matrix[:3, 3]))
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict (degrees, mm)."""
+        return {"view": self.view, "axis_angle_deg": round(self.axis_angle, 6),
+                "other_rotation_deg": round(self.other_angle, 6),
+                "translation_mm": [round(x, 6) for x in self.translation],
+                "matrix": np.round(self.matrix, 12).tolist()}
+
+
+@dataclass(frozen=True)
+class Registration:
+    """What :func:`register_views` found.
+
+    Attributes
+    ----------
+    corrections : dict of int -> Correction
+        Per view; identity where a view kept its pose.
+    applied : bool
+        False when the registration diverged (all corrections identity).
+    axis_determined : bool
+        Whether the data fix the views' turns about the axis.
+    axis_information : float
+        The information about the turn about the axis per matched point (module notes).
+    pairs : list of dict
+        The overlapping pairs: ``source``, ``target``, ``overlap``, ``rmse_mm`` (after ICP).
+    unregistered : list of int
+        Views that overlap none connected to the anchor (kept as given).
+    warnings : list of str
+    """
+
+    corrections: dict
+    applied: bool
+    axis_determined: bool
+    axis_information: float
+    pairs: list
+    unregistered: list
+    warnings: list
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict."""
+        return {"applied": self.applied, "axis_determined": self.axis_determined,
+                "axis_information": float(self.axis_information), "pairs": self.pairs,
+                "unregistered": self.unregistered, "warnings": self.warnings,
+                "corrections": [c.to_dict() for c in self.corrections.values()]}
+
+
+def twist_swing(R: np.ndarray) -> tuple[float, float]:
+    """Swing-twist decomposition of a rotation about ``z``: ``R = S Rz(alpha)``.
+
+    Returns ``(alpha, angle of S)`` in radians; ``alpha`` is the turn about ``z``
+    (from the quaternion, ``alpha = 2 atan2(q_z, q_w)``, wrapped to [-pi, pi]).
+    """
+    x, y, z, w = Rotation.from_matrix(np.asarray(R, float)).as_quat()
+    alpha = 2.0 * np.arctan2(z, w)
+    alpha = (alpha + np.pi) % (2 * np.pi) - np.pi
+    S = np.asarray(R, float) @ _rz(-alpha)
+    return float(alpha), float(np.linalg.norm(Rotation.from_matrix(S).as_rotvec()))
+
+
+def register_views(clouds: dict, options: RegistrationOptions = RegistrationOptions(),
+                   progress=None) -> Registration:
+    """Refine every view's pose jointly: pairwise point-to-plane ICP and a pose graph.
+
+    Parameters
+    ----------
+    clouds : dict of int -> (points (N, 3), normals (N, 3))
+        Each view's samples in the object frame (as the turntable puts them), mm, with unit
+        normals.
+    options : RegistrationOptions
+    progress : callable, optional
+        Called with one line per step.
+
+    Returns
+    -------
+    Registration
+
+    Notes
+    -----
+    1. thin each view to a voxel grid (:func:`_thinned`);
+    2. ICP between every two views, coarse to fine; keep the pairs that overlap
+       (:func:`_pairwise`), each with its point-to-plane Hessian (:func:`_hessian`) and its
+       correction kept to the motions the Hessian determines (:func:`_determined`);
+    3. leave out the views not connected to the anchor (:func:`_connected`);
+    4. optimise the pose graph (:func:`_pose_graph`);
+    5. if the turn about the axis is undetermined (:func:`_axis_information`), remove it;
+    6. check for divergence.
+    """
+    say = progress or (lambda _m: None)
+    views = sorted(int(v) for v in clouds)
+    warnings: list[str] = []
+    ident = {v: Correction.of(v, np.eye(4)) for v in views}
+    if len(views) < 2:
+        return Registration(ident, False, False, 0.0, [], views, warnings)
+    anchor = views[0] if options.anchor is None else int(options.anchor)
+    if anchor not in clouds:
+        raise NurbscanError(f"registration anchor {anchor}: no such view")
+    pcd = {v: _thinned(*_split(clouds[v]), options.voxel, options.normal_radius)
+           for v in views}
+    pairs = _pairwise(pcd, options)
+    say(f"merge: registration on {len(pairs)} overlapping view pairs of "
+        f"{len(views) * (len(views) - 1) // 2}")
+    linked = _connected(views, pairs, anchor)
+    lonely = [v for v in views if v not in linked]
+    if lonely:
+        warnings.append(f"views {lonely} overlap no view connected to view {anchor}: "
+                        "their poses are kept unregistered")
+    pairs = [p for p in pairs if p["source"] in linked and p["target"] in linked]
+    H_all = sum((p["H"] for p in pairs), np.zeros((6, 6)))
+    n_all = sum(p["n"] for p in pairs)
+    radius = _rms_radius(pcd, linked)
+    info = _axis_information(H_all, n_all, radius)
+    axis_ok = bool(info >= options.axis_information)
+    if not axis_ok and pairs:
+        warnings.append(f"the views' turns about the turntable axis are not determined by the "
+                        f"surface (a surface of revolution about the axis? information "
+                        f"{info:.2g} per point < {options.axis_information:g}): the table "
+                        "angles are kept as given")
+    corr = dict(ident)
+    if len(linked) > 1:
+        poses = _pose_graph(sorted(linked), pairs, anchor, options)
+        for v, T in poses.items():
+            # Open3D's threaded sums differ in the last bits from run to run: rounded to
+            # 1e-12 (mm, rad) the corrections, and so the models, are reproducible
+            T = np.round(T, 12)
+            if not axis_ok:
+                alpha, _ = twist_swing(T[:3, :3])
+                T = T.copy()
+                T[:3, :3] = T[:3, :3] @ _rz(-alpha)
+            corr[v] = Correction.of(v, T)
+    bad = [c.view for c in corr.values()
+           if max(abs(c.axis_angle), c.other_angle) > options.max_angle
+           or np.linalg.norm(c.translation) > options.max_translation]
+    applied = len(linked) > 1
+    trusted = [p for p in pairs if p.get("neighbours") and p.get("confidence", 0.0) >= 0.5]
+    worst_pair = max(trusted, key=lambda p: p["misclosure_deg"], default=None)
+    if not bad and worst_pair is not None and \
+            worst_pair["misclosure_deg"] > options.max_misclosure:
+        warnings.append(f"the views' overlaps disagree: views {worst_pair['source']} and "
+                        f"{worst_pair['target']} would be {worst_pair['misclosure_deg']:.2f} "
+                        f"degrees from their own ICP result (more than "
+                        f"{options.max_misclosure:g}); the surface does not fix the poses "
+                        "well enough and every view keeps its unregistered pose")
+        corr, applied = dict(ident), False
+    elif bad:
+        worst = max((corr[v] for v in bad), key=lambda c: abs(c.axis_angle) + c.other_angle)
+        warnings.append(f"registration diverged: views {bad} would move by more than "
+                        f"{options.max_angle:g} degrees or {options.max_translation:g} mm "
+                        f"(view {worst.view}: {worst.axis_angle:.2f} degrees about the axis, "
+                        f"{worst.other_angle:.2f} otherwise, "
+                        f"{np.linalg.norm(worst.translation):.2f} mm); every view keeps its "
+                        "unregistered pose")
+        corr, applied = dict(ident), False
+    out_pairs = [{k: (round(v, 6) if isinstance(v, float) else v) for k, v in p.items()
+                  if k not in ("H", "T")} for p in pairs]
+    return Registration(corr, applied, axis_ok, float(info), out_pairs, lonely, warnings)
+
+
+# ---------------------------------------------------------------------------- steps
+def _split(cloud):
+    """``(points, normals or None)`` of a view's cloud (an array or a pair)."""
+    if isinstance(cloud, tuple | list):
+        return cloud[0], (cloud[1] if len(cloud) > 1 else None)
+    return cloud, None
+
+
+def _o3d():
+    import open3d as o3d
+
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+    return o3d
+
+
+def _thinned(points: np.ndarray, normals: np.ndarray | None, voxel: float,
+             normal_radius: float):
+    """An Open3D cloud of one view's points thinned to ``voxel`` mm; normals averaged and
+    renormalised, or, without ``normals``, estimated from the neighbours within
+    ``normal_radius`` mm (PCA, Open3D ``estimate_normals``)."""
+    o3d = _o3d()
+    P = np.asarray(points, float).reshape(-1, 3)
+    ok = np.isfinite(P).all(1)
+    if normals is not None:
+        N = np.asarray(normals, float).reshape(-1, 3)
+        ok &= np.isfinite(N).all(1)
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P[ok]))
+    if normals is not None:
+        pc.normals = o3d.utility.Vector3dVector(N[ok])
+    pc = pc.voxel_down_sample(voxel)
+    if normals is None:
+        pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=normal_radius,
+                                                                  max_nn=30))
+    pc.normalize_normals()
+    return pc
+
+
+def _icp(source, target, options: RegistrationOptions, init: np.ndarray):
+    """Coarse-to-fine point-to-plane ICP of ``source`` onto ``target`` (Open3D)."""
+    o3d = _o3d()
+    reg = o3d.pipelines.registration
+    T = init
+    for d in options.distances:
+        res = reg.registration_icp(
+            source, target, d, T, reg.TransformationEstimationPointToPlane(),
+            reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7,
+                                       max_iteration=options.iterations))
+        T = np.asarray(res.transformation)
+    return T, res
+
+
+def _hessian(source, target, T: np.ndarray, distance: float) -> tuple[np.ndarray, int]:
+    """The point-to-plane Gauss-Newton Hessian ``sum J^T J`` of ``source`` moved by ``T`` onto
+    ``target`` at correspondence distance ``distance``: (6, 6) in the order (rotation,
+    translation), and the number of correspondences."""
+    S = np.asarray(source.points) @ T[:3, :3].T + T[:3, 3]
+    Q, N = np.asarray(target.points), np.asarray(target.normals)
+    dist, idx = cKDTree(Q).query(S, distance_upper_bound=distance)
+    ok = np.isfinite(dist)
+    q, n = Q[idx[ok]], N[idx[ok]]
+    J = np.hstack([np.cross(q, n), n])
+    return J.T @ J, int(ok.sum())
+
+
+def _scale(radius: float) -> np.ndarray:
+    """Diagonal scaling that expresses rotations in mm at ``radius``."""
+    return np.diag([1 / radius] * 3 + [1.0] * 3)
+
+
+def _determined(T: np.ndarray, H: np.ndarray, n: int, radius: float,
+                threshold: float) -> np.ndarray:
+    """``T`` kept to the motions that ``H`` determines: its twist (rotation vector, translation)
+    projected onto the eigenvectors of the scaled per-point Hessian with eigenvalues at least
+    ``threshold`` times the largest."""
+    D = _scale(radius)
+    Hs = D @ H @ D / max(n, 1)
+    w, V = np.linalg.eigh(Hs)
+    keep = V[:, w >= threshold * w.max()]
+    xi = np.concatenate([Rotation.from_matrix(T[:3, :3]).as_rotvec() * radius, T[:3, 3]])
+    xi = keep @ (keep.T @ xi)
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_rotvec(xi[:3] / radius).as_matrix()
+    out[:3, 3] = xi[3:]
+    return out
+
+
+def _pairwise(pcd: dict, options: RegistrationOptions) -> list[dict]:
+    """ICP between every two views that overlap as given; the pairs that still overlap and
+    whose ICP did not run away (a correction within 3 ``max_angle`` and 3 ``max_translation``),
+    as dicts with ``source``, ``target``, ``overlap`` (share of the source's points matched),
+    ``rmse_mm`` (point-to-point, Open3D's), ``n`` (matched points), ``T`` (source onto target)
+    and ``H`` (Hessian)."""
+    o3d = _o3d()
+    views = sorted(pcd)
+    radius = _rms_radius(pcd, views)
+    fine = options.distances[-1]
+    out = []
+    for a, i in enumerate(views):
+        for j in views[a + 1:]:
+            src, tgt = pcd[j], pcd[i]
+            need = max(options.min_points, options.min_overlap * len(src.points))
+            first = o3d.pipelines.registration.evaluate_registration(src, tgt, fine,
+                                                                      np.eye(4))
+            if first.fitness * len(src.points) < need:
+                continue
+            T, res = _icp(src, tgt, options, np.eye(4))
+            H, n = _hessian(src, tgt, T, fine)
+            if n < need:
+                continue
+            T = _determined(T, H, n, radius, options.pair_information)
+            c = Correction.of(j, T)
+            # an ICP that ran far away (a turn to another side of the object) is no overlap
+            if (max(abs(c.axis_angle), c.other_angle) > 3 * options.max_angle
+                    or np.linalg.norm(c.translation) > 3 * options.max_translation):
+                continue
+            out.append({"source": j, "target": i, "overlap": n / len(src.points),
+                        "rmse_mm": float(res.inlier_rmse), "n": n, "T": T, "H": H})
+    return out
+
+
+def _connected(views: list, pairs: list, anchor: int) -> set:
+    """The views linked to ``anchor`` through overlapping pairs."""
+    adj = {v: set() for v in views}
+    for p in pairs:
+        adj[p["source"]].add(p["target"])
+        adj[p["target"]].add(p["source"])
+    seen, todo = {anchor}, [anchor]
+    while todo:
+        for w in adj[todo.pop()] - seen:
+            seen.add(w)
+            todo.append(w)
+    return seen
+
+
+def _rms_radius(pcd: dict, views) -> float:
+    """RMS distance of the samples from the axis (mm), at least 1."""
+    P = np.concatenate([np.asarray(pcd[v].points) for v in views])
+    return float(max(1.0, np.sqrt(np.mean(np.sum(P[:, :2] ** 2, axis=1)))))
+
+
+def _axis_information(H: np.ndarray, n: int, radius: float) -> float:
+    """Information about the turn about ``z`` per matched point that the other five motions do
+    not explain: the Schur complement of the scaled Hessian's entry for ``omega_z``."""
+    if n == 0:
+        return 0.0
+    D = _scale(radius)
+    Hs = D @ H @ D / n
+    k = 2
+    o = [0, 1, 3, 4, 5]
+    Hoo = Hs[np.ix_(o, o)]
+    s = Hs[k, k] - Hs[k, o] @ np.linalg.pinv(Hoo, rcond=1e-8) @ Hs[o, k]
+    return float(max(s, 0.0))
+
+
+def _pose_graph(views: list, pairs: list, anchor: int,
+                options: RegistrationOptions) -> dict:
+    """Optimise the pose graph (Open3D ``global_optimization``); node ``v``'s pose is view
+    ``v``'s correction (4 x 4), the anchor's the identity."""
+    o3d = _o3d()
+    reg = o3d.pipelines.registration
+    node = {v: k for k, v in enumerate(views)}
+    g = reg.PoseGraph()
+    for _ in views:
+        g.nodes.append(reg.PoseGraphNode(np.eye(4)))
+    order = {v: k for k, v in enumerate(views)}
+    for p in pairs:
+        # neighbours in table angle (index order) are trusted, the others may be pruned
+        near = abs(order[p["source"]] - order[p["target"]]) in (1, len(views) - 1)
+        p["neighbours"] = bool(near)
+        g.edges.append(reg.PoseGraphEdge(node[p["source"]], node[p["target"]], p["T"],
+                                         p["H"], uncertain=not near))
+    opt = reg.GlobalOptimizationOption(max_correspondence_distance=options.distances[-1],
+                                       edge_prune_threshold=0.25, preference_loop_closure=1.0,
+                                       reference_node=node[anchor])
+    reg.global_optimization(g, reg.GlobalOptimizationLevenbergMarquardt(),
+                            reg.GlobalOptimizationConvergenceCriteria(), opt)
+    A = np.linalg.inv(np.asarray(g.nodes[node[anchor]].pose))
+    poses = {v: A @ np.asarray(g.nodes[node[v]].pose) for v in views}
+    # the line process removes the edges it prunes from the graph
+    kept = {(e.source_node_id, e.target_node_id): float(e.confidence) for e in g.edges}
+    for p in pairs:
+        # how far the optimised poses are from the pair's own ICP result
+        D = np.linalg.inv(p["T"]) @ np.linalg.inv(poses[p["target"]]) @ poses[p["source"]]
+        p["misclosure_deg"] = float(np.degrees(np.linalg.norm(
+            Rotation.from_matrix(D[:3, :3]).as_rotvec())))
+        p["misclosure_mm"] = float(np.linalg.norm(D[:3, 3]))
+        p["confidence"] = kept.get((node[p["source"]], node[p["target"]]), 0.0)
+    return poses
+
+
+def _rz(alpha: float) -> np.ndarray:
+    c, s = np.cos(alpha), np.sin(alpha)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
