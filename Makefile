@@ -8,7 +8,14 @@ VALIDATOR := $(NODE_DIR)/node_modules/gltf-validator/package.json
 
 .PHONY: demo test bench lint clean
 
+# Open3D's wheel links libusb-1.0 (Debian's package libusb-1.0-0), which a fresh machine may lack.
 $(STAMP): pyproject.toml
+	@if ! ldconfig -p 2>/dev/null | grep -q libusb-1.0.so.0; then \
+	  if command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
+	    (apt-get update -qq && apt-get install -y -qq libusb-1.0-0 >/dev/null) \
+	      || echo "libusb-1.0-0 could not be installed: open3d will not import"; \
+	  else echo "libusb-1.0-0 is missing (sudo apt-get install libusb-1.0-0): open3d needs it"; fi; \
+	fi
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test]'
