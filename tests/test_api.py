@@ -17,7 +17,7 @@ import nurbscan
 from nurbscan.errors import NurbscanError
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCTEST_MODULES = ("nurbscan", "nurbscan.io.scan")
+DOCTEST_MODULES = ("nurbscan", "nurbscan.io.scan", "nurbscan.calibrate.opencv")
 
 
 @pytest.mark.parametrize("name", DOCTEST_MODULES)

@@ -26,6 +26,7 @@ on first use, so ``import nurbscan`` stays cheap:
 :class:`Rig`           camera, projector and turntable (:mod:`nurbscan.camera`)
 :class:`Camera`        Tsai's camera model; :class:`Projector` the same as an inverse camera
 :func:`load_rig`       read a rig JSON
+:func:`read_opencv`    a rig from OpenCV FileStorage YAML; :func:`write_opencv` the reverse
 :class:`NurbsCurve`    NURBS curve; :class:`NurbsSurface` NURBS surface
 :func:`fit_curve`      approximate points by a B-spline within a tolerance
 =====================  ============================================================
@@ -104,6 +105,8 @@ _LAZY = {
     "Projector": "nurbscan.camera",
     "Turntable": "nurbscan.camera",
     "load_rig": "nurbscan.camera",
+    "read_opencv": "nurbscan.calibrate.opencv",
+    "write_opencv": "nurbscan.calibrate.opencv",
     "NurbsCurve": "nurbscan.nurbs",
     "NurbsSurface": "nurbscan.nurbs",
     "fit_curve": "nurbscan.nurbs",
