@@ -138,6 +138,8 @@ def test_docs_python_md_worked_example_runs(tmp_path, monkeypatch, capsys):
     model = nurbscan.load_model(tmp_path / "model")
     assert len(model.points) > 1000 and len(model.surfaces) >= 2
     r = np.linalg.norm(model.points - [0.0, 0.0, 60.0], axis=1)
+    print(f"python.md: {len(model.points)} points, median |r - 60| = "
+          f"{np.median(np.abs(r - 60.0)):.4f} mm")
     assert np.median(np.abs(r - 60.0)) < 0.5  # mm
     for name in ("sphere.3dm", "sphere.glb", "calib.json"):
         assert (tmp_path / name).stat().st_size > 1000, name
