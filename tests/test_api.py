@@ -105,8 +105,14 @@ def test_load_scan_refuses_a_symlink_out_of_the_folder(tmp_path):
         nurbscan.load_scan(scan)
 
 
-@pytest.mark.parametrize("text, what", [("{", "scan.json"), ('{"type": "x"}', "not a nurbscan"),
-                                        ('{"type": "nurbscan.scan"}', "image_size")])
+@pytest.mark.parametrize("text, what", [
+    ("{", "scan.json"), ('{"type": "x"}', "not a nurbscan"),
+    ('{"type": "nurbscan.scan"}', "image_size"),
+    ('{"type": "nurbscan.scan", "image_size": [4, 4], "bit_depth": "x"}', "bit_depth"),
+    ('{"type": "nurbscan.scan", "image_size": [4, 4], "views": {}}', "views: expected a list"),
+    ('{"type": "nurbscan.scan", "image_size": [4, 4], "views": [{"grid": "g.png", '
+     '"table_angle": "NaN"}]}', "views.0..table_angle"),
+])
 def test_load_scan_bad_json_is_one_line(tmp_path, text, what):
     (tmp_path / "scan.json").write_text(text)
     with pytest.raises(NurbscanError, match=what) as exc:

@@ -163,7 +163,10 @@ def load_scan(folder: str | os.PathLike) -> Scan:
                  table_angle=_angle(p["table_angle"], scale, src, f"calibration.poses[{n}]")
                  if p.get("table_angle") is not None else None)
         for n, p in enumerate(_objects(calib.get("poses", []), src, "calibration.poses")))
-    return Scan(folder=root, image_size=size, bit_depth=int(doc.get("bit_depth", 8)),
+    depth = doc.get("bit_depth", 8)
+    if depth not in (8, 16) or isinstance(depth, bool):
+        raise NurbscanError(f"{src}: bit_depth {depth!r}: expected 8 or 16")
+    return Scan(folder=root, image_size=size, bit_depth=int(depth),
                 pattern_image=_inside(root, pat.get("image", "pattern.png"), src,
                                       "pattern.image"),
                 pattern_sidecar=_inside(root, pat.get("sidecar", "pattern.json"), src,
