@@ -77,10 +77,6 @@ Traceback (most recent call last):
 nurbscan.errors.NurbscanError: no/such/calib.json: ...
 """
 
-from __future__ import annotations
-
-import importlib
-
 __version__ = "0.1.0"
 
 from .errors import NurbscanError
@@ -120,7 +116,9 @@ def __getattr__(name: str):
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module 'nurbscan' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
+    from importlib import import_module  # here, not at the top: import nurbscan stays cheap
+
+    value = getattr(import_module(module), name)
     globals()[name] = value
     return value
 
