@@ -21,6 +21,7 @@ COMMANDS = (
     "simulate",
     "detect",
     "calibrate",
+    "rig",
     "reconstruct",
     "evaluate",
     "export",

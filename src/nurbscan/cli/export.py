@@ -27,6 +27,9 @@ def register(sub) -> None:
                         "(default horizontal_line,vertical_line,gordon)")
     p.add_argument("--no-colour", action="store_true",
                    help="mesh formats: neutral grey instead of the white-light colours")
+    p.add_argument("--points", action="store_true",
+                   help="ply only: the merged point cloud (points.npz) with normals and "
+                        "colours instead of the mesh")
     p.add_argument("--per-span", type=int, default=4,
                    help="mesh formats: grid intervals per knot span (4)")
     p.set_defaults(func=run)
@@ -50,6 +53,6 @@ def run(args: argparse.Namespace) -> int:
     kinds = ALL_KINDS if args.kinds == "all" else tuple(
         k.strip() for k in args.kinds.split(",") if k.strip())
     out = export_model(args.model, args.output, fmt, kinds=kinds, colour=not args.no_colour,
-                       per_span=args.per_span)
+                       per_span=args.per_span, points=args.points)
     print(f"wrote {out} ({fmt}, {out.stat().st_size} bytes)")
     return 0

@@ -100,7 +100,8 @@ def select(model, kinds=DEFAULT_KINDS) -> tuple[list, list]:
 
 
 def export_model(model, path: str | os.PathLike, fmt: str | None = None,
-                 kinds=DEFAULT_KINDS, colour: bool = True, per_span: int = 4) -> Path:
+                 kinds=DEFAULT_KINDS, colour: bool = True, per_span: int = 4,
+                 points: bool = False) -> Path:
     """Export a model (a folder or a loaded Model) to ``path`` in ``fmt`` (default: suffix).
 
     NURBS formats (3dm, igs) hold the curves and surfaces of ``kinds``; mesh formats (glb,
@@ -117,8 +118,16 @@ def export_model(model, path: str | os.PathLike, fmt: str | None = None,
                                 "use igs or 3dm")
     if fmt not in FORMATS:
         raise NurbscanError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
+    if points and fmt != "ply":
+        raise NurbscanError(f"{path}: the point cloud is written as ply only, not {fmt!r}")
     if not hasattr(model, "surfaces"):
         model = load_model(model)
+    if points:
+        from .points import write_points
+
+        rig = find_rig(model) if colour else None
+        images = find_white_images(model) if colour and rig is not None else {}
+        return write_points(model, path, rig, images)
     if fmt in NURBS_FORMATS:
         curves, surfaces = select(model, kinds)
         if fmt == "3dm":

@@ -2,10 +2,13 @@
 
 from .atomic import atomic_path, read_json, write_bytes, write_json, write_text
 from .images import chroma_subsampled, read_image, write_image
+from .scan import Scan, load_scan
 
 __all__ = [
     "atomic_path",
+    "Scan",
     "chroma_subsampled",
+    "load_scan",
     "read_image",
     "read_json",
     "write_bytes",
