@@ -56,7 +56,11 @@ def _resolve(name, model) -> Path | None:
 
 
 def find_rig(model):
-    """The calibrated rig recorded in ``meta.calibration`` (or the scan's true rig), or None."""
+    """The calibrated rig recorded in ``meta.calibration``, or None.
+
+    Never the scan's ``truth/rig.json``: nothing downstream of the images reads the truth (a
+    model without its calibration is exported without colour, with a warning by the caller).
+    """
     from ..camera import load_rig
 
     for name in (model.meta.get("calibration"), ):
@@ -66,9 +70,6 @@ def find_rig(model):
                 return load_rig(p)
             except NurbscanError:
                 pass
-    scan = _resolve(model.meta.get("source"), model)
-    if scan is not None and (scan / "truth" / "rig.json").is_file():
-        return load_rig(scan / "truth" / "rig.json")
     return None
 
 
