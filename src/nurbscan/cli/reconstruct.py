@@ -15,9 +15,10 @@ def register(sub) -> None:
         description=(
             "Detect the grid in every view of a scan folder, triangulate its labelled edge "
             "lines with the calibrated rig, build the curve network, skins and Gordon "
-            "surfaces, merge the views in the turntable frame and write the model folder "
-            "(model.json, points.npz, model.png, overlays/view_KK_overlay.png with the "
-            "detected lines of each view; docs/model-format.md). Never reads truth/."))
+            "surfaces, merge the views in the turntable frame, fuse them into one coloured "
+            "triangle mesh and write the model folder (model.json, points.npz, model.png, "
+            "fused.ply, overlays/view_KK_overlay.png with the detected lines of each view; "
+            "docs/model-format.md). Never reads truth/."))
     p.add_argument("scan", type=Path, help="scan folder (with scan.json)")
     p.add_argument("--calib", type=Path, required=True,
                    help="calibrated rig (calib.json from 'nurbscan calibrate')")
@@ -30,6 +31,10 @@ def register(sub) -> None:
     p.add_argument("--workers", type=int, default=2,
                    help="processes reconstructing views side by side, at most one per CPU "
                         "(default 2; 0 = one per CPU); the model does not depend on it")
+    p.add_argument("--max-triangles", type=int, default=300_000,
+                   help="triangle budget of the fused mesh (300000)")
+    p.add_argument("--no-fuse", action="store_true",
+                   help="no fused mesh (fused.ply): the per-view patches only")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 
@@ -38,12 +43,14 @@ def run(args: argparse.Namespace) -> int:
     """Reconstruct ``args.scan`` with the rig ``args.calib`` into ``args.output``."""
     from ..camera import load_rig
     from ..errors import NurbscanError
+    from ..merge.fusion import FusionOptions
     from ..reconstruct import reconstruct_scan
 
     if args.workers < 0:
         raise NurbscanError(f"--workers {args.workers}: must be >= 0")
     if args.min_curves < 2:
         raise NurbscanError(f"--min-curves {args.min_curves}: must be at least 2")
+    fusion = None if args.no_fuse else FusionOptions(max_triangles=args.max_triangles)
     t0 = time.perf_counter()
     rig = load_rig(args.calib)
 
@@ -53,10 +60,12 @@ def run(args: argparse.Namespace) -> int:
 
     model = reconstruct_scan(args.scan, rig, progress=say, views=args.views,
                              min_curves=args.min_curves, workers=args.workers,
-                             overlays=Path(args.output) / "overlays")
+                             overlays=Path(args.output) / "overlays", fusion=fusion)
     model.meta["calibration"] = str(args.calib)
     path = model.save(args.output)
     n = {k: v for k, v in model.to_dict()["counts"].items()}
     print(f"wrote {path}: {n['gordon']} Gordon patches, "
-          f"{n['horizontal_line'] + n['vertical_line']} curves, {len(model.points)} points")
+          f"{n['horizontal_line'] + n['vertical_line']} curves, {len(model.points)} points"
+          + ("" if model.fused is None else
+             f", fused mesh of {len(model.fused.faces)} triangles (fused.ply)"))
     return 0

@@ -190,7 +190,8 @@ def _view_job(job: dict):
 def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
                      progress: Callable[[str], None] | None = None,
                      views: list[int] | None = None, workers: int = 1,
-                     overlays: str | os.PathLike | None = None, **view_kwargs) -> Model:
+                     overlays: str | os.PathLike | None = None, fusion=None,
+                     **view_kwargs) -> Model:
     """Reconstruct every view of a scan folder and merge them in the object frame.
 
     Parameters
@@ -209,6 +210,9 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
     overlays : path-like, optional
         Folder to write each view's detected lines into (``view_KK_overlay.png``, 1536 px
         wide), the picture a person checks the decoding on.
+    fusion : nurbscan.merge.FusionOptions, optional
+        Fuse the merged views into one coloured mesh (``Model.fused``,
+        :func:`nurbscan.merge.fuse_model`); None: no fused mesh.
     **view_kwargs
         Passed to :func:`~nurbscan.reconstruct.view.reconstruct_view`.
     """
@@ -257,5 +261,10 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
         if "light_surface" not in model.meta and res.lines:
             model.meta["light_surface"] = light_surface_check(res, rig)
         add_view(model, res, rig, job["index"], job["angle"], t)
+    if fusion is not None:
+        from ..merge.fusion import fuse_model
+
+        model.fused = fuse_model(model, rig, {j["index"]: j["white"] for j in jobs}, fusion,
+                                 progress=progress)
     model.meta["total_s"] = round(time.perf_counter() - t_all, 3)
     return model

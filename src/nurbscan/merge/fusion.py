@@ -1,0 +1,570 @@
+"""One triangle mesh of the object for VR: the views' samples fused by screened Poisson (issue 32).
+
+Every view contributes its Gordon patches, sampled with unit normals turned towards its camera
+(``Model.points``, ``Model.normals``), in the object frame. The samples of all views are fused
+into one surface by screened Poisson reconstruction (Kazhdan and Hoppe 2013, Open3D's
+``create_from_point_cloud_poisson``), which averages the views' coincident layers into one. The
+implicit surface is closed by construction; it is trimmed back to the measured data (the
+triangulated edge points of the network lines), small holes of the data are left closed, and
+fragments dropped. The vertices are then projected onto the samples (a moving-least-squares
+step, Alexa et al. 2003), the mesh decimated to a triangle budget by quadric error metrics
+(Garland and Heckbert 1997, Open3D) and coloured from the views' white-light images.
+
+Units: mm, object (turntable) frame, ``z`` up (glTF's ``y`` up is a node rotation at export).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from ..errors import NurbscanError
+
+__all__ = ["FusedMesh", "FusionOptions", "decimate", "fuse_model", "fuse_samples", "read_fused",
+           "write_fused"]
+
+FUSED_FILE = "fused.ply"
+
+
+@dataclass(frozen=True)
+class FusionOptions:
+    """Settings of :func:`fuse_model`, grouped by step.
+
+    Attributes
+    ----------
+    samples : {"patches", "edges"}
+        What is fused: the Gordon patches sampled (4 per knot span, normals from the surfaces)
+        or the raw triangulated edge points (normals estimated from 24 neighbours, turned
+        towards their view's camera).
+    depth : int or None
+        Poisson octree depth; None: the smallest depth whose cell is at most ``cell_pitch``
+        times the grid pitch at the object.
+    cell_pitch : float
+        Poisson cell size, in grid pitches at the object (for ``depth=None``).
+    support_pitch : float
+        Patch samples farther than this many pitches from the nearest measured point (edge
+        point of a network line) are not fused (border rows running past the data).
+    trim_pitch : float
+        Surface farther than this many pitches from the nearest fused sample is cut away.
+    hole_pitch : float
+        A cut-away piece enclosed by kept surface whose points all lie within this many
+        pitches of the data is a hole of the data and stays closed.
+    min_part : float
+        Connected parts smaller than this share of the mesh's area are dropped.
+    project_k : int
+        Samples used by the projection of each vertex onto the samples (0: no projection).
+    max_triangles : int
+        Triangle budget (quadric decimation above it).
+    workers : int
+        Threads of the Poisson solver (0: all CPUs).
+    """
+
+    samples: str = "patches"
+    depth: int | None = None
+    cell_pitch: float = 0.5
+    support_pitch: float = 0.5
+    trim_pitch: float = 0.25
+    hole_pitch: float = 3.0
+    min_part: float = 0.002
+    project_k: int = 12
+    max_triangles: int = 300_000
+    workers: int = 2
+
+    def __post_init__(self):
+        if self.samples not in ("patches", "edges"):
+            raise NurbscanError(f"fusion samples {self.samples!r}: expected 'patches' or "
+                                "'edges'")
+        if self.max_triangles < 100:
+            raise NurbscanError(f"--max-triangles {self.max_triangles}: must be at least 100")
+
+
+@dataclass(frozen=True)
+class FusedMesh:
+    """The fused triangle mesh of an object.
+
+    Attributes
+    ----------
+    vertices : ndarray (N, 3) float64, mm, object frame
+    faces : ndarray (F, 3) int64, counter-clockwise seen from outside
+    colors : ndarray (N, 4) uint8 RGBA
+    info : dict
+        Summary (counts, area, parts, pitch, settings, times, colour source).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    colors: np.ndarray
+    info: dict = field(default_factory=dict)
+
+    def trimesh(self, scale: float = 1.0):
+        """A ``trimesh.Trimesh`` (vertices times ``scale``) with the vertex colours."""
+        import trimesh
+
+        return trimesh.Trimesh(self.vertices * scale, self.faces, vertex_colors=self.colors,
+                               process=False)
+
+
+# ---------------------------------------------------------------------------- public
+def fuse_model(model, rig=None, white: Mapping[int, str | os.PathLike] | None = None,
+               options: FusionOptions | None = None,
+               progress: Callable[[str], None] | None = None) -> FusedMesh:
+    """One coloured triangle mesh of a model's views (object frame, mm).
+
+    Parameters
+    ----------
+    model : nurbscan.reconstruct.Model
+        The views' Gordon patches, samples (``points``, ``normals``, ``point_view``) and edge
+        points in the object frame. A model without samples has its Gordon surfaces sampled.
+    rig : Rig, optional
+        The calibrated rig: orients normals (edge samples, surfaces without samples) towards
+        the cameras and projects vertices into the white images.
+    white : mapping {view index: image path}, optional
+        The views' white-light photographs; without them (or the rig) the mesh is grey.
+    options : FusionOptions, optional
+    progress : callable, optional
+        Called with a line per step.
+
+    Notes
+    -----
+    1. Samples with normals (:func:`_samples`) and the grid pitch at the object.
+    2. :func:`fuse_samples`: Poisson, trim, holes, parts, projection, decimation.
+    3. Vertex colours from the white images (:func:`_vertex_colours`).
+    """
+    opt = options or FusionOptions()
+    t0 = time.perf_counter()
+    pitch = _pitch(model)
+    P, N = _samples(model, rig, opt, pitch)
+    if len(P) < 100:
+        raise NurbscanError(f"fusion: {len(P)} samples, too few to fuse a surface")
+    V, F, info = fuse_samples(P, N, P, pitch, opt, progress)
+    t1 = time.perf_counter()
+    colors, source = _vertex_colours(V, F, model, rig, white)
+    info.update({"colour": source, "samples": opt.samples, "n_samples": int(len(P)),
+                 "fuse_s": round(t1 - t0, 3), "colour_s": round(time.perf_counter() - t1, 3)})
+    if progress is not None:
+        progress(f"fused mesh: {info['faces']} triangles, {info['parts']} parts, "
+                 f"{info['area_mm2']:.0f} mm^2, colour {source} "
+                 f"({info['fuse_s']:.1f} + {info['colour_s']:.1f} s)")
+    return FusedMesh(V, F, colors, info)
+
+
+def fuse_samples(points: np.ndarray, normals: np.ndarray, data: np.ndarray, pitch: float,
+                 options: FusionOptions | None = None,
+                 progress: Callable[[str], None] | None = None):
+    """Fuse oriented samples into one trimmed triangle mesh.
+
+    Parameters
+    ----------
+    points, normals : ndarray (N, 3)
+        Samples (mm) with outward unit normals.
+    data : ndarray (M, 3)
+        The measured points the surface may not run past (mm).
+    pitch : float
+        Grid pitch at the object, mm: the unit of the trim and hole sizes.
+
+    Returns
+    -------
+    vertices (V, 3), faces (F, 3), info dict.
+
+    Notes
+    -----
+    1. Screened Poisson (Kazhdan and Hoppe 2013) at the depth whose cell is ``cell_pitch``
+       pitches.
+    2. Trim: faces with a vertex more than ``trim_pitch`` pitches from the data go, except
+       enclosed pieces within ``hole_pitch`` pitches of it (small holes stay closed).
+    3. Parts under ``min_part`` of the area go.
+    4. Vertices projected onto the samples (:func:`_project`).
+    5. Quadric decimation to ``max_triangles``, then the projection again.
+    """
+    opt = options or FusionOptions()
+    say = progress or (lambda _msg: None)
+    t = time.perf_counter()
+    V, F, depth = _poisson(points, normals, pitch, opt)
+    n_poisson = len(F)
+    say(f"fusion: Poisson depth {depth}, {n_poisson} triangles ({time.perf_counter() - t:.1f} s)")
+    keep, holes = _trim(V, F, data, pitch, opt)
+    V, F = _compact(V, F[keep])
+    V, F, parts = _largest_parts(V, F, opt.min_part)
+    say(f"fusion: trimmed to the data, {holes} holes closed, {len(F)} triangles in "
+        f"{parts} parts ({time.perf_counter() - t:.1f} s)")
+    tree = cKDTree(points)
+    V = _project(V, F, points, normals, tree, opt.project_k, pitch)
+    n_full = len(F)
+    if len(F) > opt.max_triangles:
+        V, F = decimate(V, F, opt.max_triangles)
+        V = _project(V, F, points, normals, tree, opt.project_k, pitch)
+        say(f"fusion: decimated {n_full} -> {len(F)} triangles "
+            f"({time.perf_counter() - t:.1f} s)")
+    V, F = _clean(V, F)
+    area = float(_face_areas(V, F).sum())
+    info = {"method": "screened Poisson (Open3D), trimmed to the edge points, projected onto "
+                      "the samples, quadric decimation",
+            "vertices": int(len(V)), "faces": int(len(F)), "parts": count_parts(F, len(V)),
+            "area_mm2": round(area, 3), "pitch_mm": round(float(pitch), 4),
+            "poisson_depth": int(depth), "poisson_faces": int(n_poisson),
+            "holes_closed": int(holes), "before_decimation": int(n_full),
+            "max_triangles": int(opt.max_triangles), "units": "mm", "frame": "object",
+            "watertight": _watertight(F)}
+    return V, F, info
+
+
+# ---------------------------------------------------------------------------- I/O
+def write_fused(folder: str | os.PathLike, mesh: FusedMesh) -> Path:
+    """Write ``folder/fused.ply`` (binary PLY, mm, vertex colours) atomically."""
+    from ..io.atomic import atomic_path
+
+    data = mesh.trimesh().export(file_type="ply", encoding="binary")
+    path = Path(folder) / FUSED_FILE
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return path
+
+
+def read_fused(path: str | os.PathLike, info: dict | None = None) -> FusedMesh:
+    """Read a fused mesh written by :func:`write_fused`."""
+    import trimesh
+
+    path = Path(path)
+    try:
+        tm = trimesh.load(io.BytesIO(path.read_bytes()), file_type="ply", process=False)
+        V = np.asarray(tm.vertices, float)
+        F = np.asarray(tm.faces, np.int64)
+        C = np.asarray(tm.visual.vertex_colors, np.uint8)
+    except (OSError, ValueError, AttributeError, KeyError) as exc:
+        raise NurbscanError(f"{path}: not a readable fused mesh ({exc})") from None
+    if C.shape != (len(V), 4):
+        C = np.tile(np.array([180, 180, 180, 255], np.uint8), (len(V), 1))
+    return FusedMesh(V, F, C, dict(info or {}))
+
+
+# ---------------------------------------------------------------------------- steps
+def _camera_centres(model, rig) -> dict[int, np.ndarray]:
+    """Camera centre of each view in the object frame, mm."""
+    if rig is None:
+        return {}
+    c = np.asarray(rig.camera.center, float)[None]
+    return {int(v["index"]): rig.turntable.from_rig(c, float(v["table_angle"]))[0]
+            for v in model.views}
+
+
+def _surface_samples(model, rig, per_span: int = 4):
+    """Grid samples and unit normals of every Gordon surface (for models without samples),
+    normals turned towards the view's camera (or away from the centroid without a rig)."""
+    centres = _camera_centres(model, rig)
+    pts, nrm, views = [], [], []
+    for s in model.surfaces_of("gordon"):
+        srf = s["surface"]
+        (u0, u1), (v0, v1) = srf.domain
+        nu = max(per_span * (len(np.unique(srf.knots_u)) - 1) + 1, 41)
+        nv = max(per_span * (len(np.unique(srf.knots_v)) - 1) + 1, 41)
+        uu, vv = np.meshgrid(np.linspace(u0, u1, nu), np.linspace(v0, v1, nv), indexing="ij")
+        pts.append(srf.evaluate(uu.ravel(), vv.ravel()))
+        nrm.append(srf.normal(uu.ravel(), vv.ravel()))
+        views.append(np.full(nu * nv, int(s.get("view", 0))))
+    if not pts:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, int)
+    P, N, pv = np.concatenate(pts), np.concatenate(nrm), np.concatenate(views)
+    ok = np.isfinite(N).all(1)
+    P, N, pv = P[ok], N[ok], pv[ok]
+    ref = np.array([centres[v] for v in pv]) - P if centres else P - P.mean(0)
+    N = np.where((N * ref).sum(1, keepdims=True) < 0, -N, N)
+    return P, N, pv
+
+
+def _samples(model, rig, opt: FusionOptions, pitch: float):
+    """``(points, normals)``: the oriented samples to fuse, those of the patches kept only
+    within ``support_pitch`` pitches of an edge point (a patch's border rows may run past the
+    measured lines)."""
+    edges = np.asarray(model.edge_points, float).reshape(-1, 3)
+    if opt.samples == "edges":
+        if len(edges) == 0:
+            raise NurbscanError("fusion: samples 'edges' but the model has no edge points")
+        P, N = _edge_normals(edges, np.asarray(model.edge_view, int), _camera_centres(model,
+                                                                                      rig))
+    elif len(model.points):
+        P = np.asarray(model.points, float)
+        N = np.asarray(model.normals, float)
+    else:
+        P, N, _ = _surface_samples(model, rig)
+    ok = np.isfinite(P).all(1) & np.isfinite(N).all(1)
+    if opt.samples == "patches" and len(edges):
+        d, _ = cKDTree(edges).query(P, k=1, distance_upper_bound=opt.support_pitch * pitch)
+        ok &= np.isfinite(d)
+    P, N = P[ok], N[ok]
+    N = N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
+    return P, N
+
+
+def _edge_normals(points: np.ndarray, view: np.ndarray, centres: dict, k: int = 24):
+    """Unit normals of edge points by PCA of their ``k`` nearest points of the same view
+    (Hoppe et al. 1992), turned towards the view's camera."""
+    N = np.zeros_like(points)
+    for v in np.unique(view):
+        sel = np.flatnonzero(view == v)
+        Q = points[sel]
+        _, idx = cKDTree(Q).query(Q, k=min(k, len(Q)))
+        nb = Q[idx] - Q[idx].mean(1, keepdims=True)
+        cov = np.einsum("nki,nkj->nij", nb, nb)
+        _, vec = np.linalg.eigh(cov)
+        n = vec[:, :, 0]
+        ref = centres.get(int(v), Q.mean(0) + 1e3) - Q if centres else Q - Q.mean(0)
+        N[sel] = np.where((n * ref).sum(1, keepdims=True) < 0, -n, n)
+    return points, N
+
+
+def _pitch(model) -> float:
+    """The grid pitch at the object, mm.
+
+    A Gordon patch spans ``I`` vertical and ``J`` horizontal edge curves; consecutive edges
+    are half a pitch apart on average (two edges per band, band plus gap = pitch), so a
+    patch's chord across its ``u`` (``v``) domain over ``(I - 1) / 2`` (``(J - 1) / 2``) is a
+    pitch. The median over patches and both directions. A model without edge points
+    (surfaces only) gets eight times the median spacing of its samples.
+    """
+    est = []
+    if len(model.edge_points):
+        for s in model.surfaces_of("gordon"):
+            srf, (ni, nj) = s["surface"], s.get("n_curves", (0, 0))
+            (u0, u1), (v0, v1) = srf.domain
+            um, vm = 0.5 * (u0 + u1), 0.5 * (v0 + v1)
+            X = srf.evaluate(np.array([u0, u1, um, um]), np.array([vm, vm, v0, v1]))
+            if ni > 1:
+                est.append(2.0 * np.linalg.norm(X[1] - X[0]) / (ni - 1))
+            if nj > 1:
+                est.append(2.0 * np.linalg.norm(X[3] - X[2]) / (nj - 1))
+    if est:
+        return float(np.median(est))
+    P = _surface_samples(model, None)[0] if not len(model.points) else model.points
+    d, _ = cKDTree(P).query(P[:: max(1, len(P) // 5000)], k=2)
+    return float(8.0 * np.median(d[:, 1]))
+
+
+def _open3d():
+    """The ``open3d`` module, or a one-line error saying why it cannot be imported."""
+    try:
+        import open3d as o3d
+    except ImportError as exc:  # e.g. libusb-1.0.so.0 missing (Debian: libusb-1.0-0)
+        raise NurbscanError(f"fusion: Open3D cannot be imported ({exc})") from None
+    return o3d
+
+
+def _poisson(P: np.ndarray, N: np.ndarray, pitch: float, opt: FusionOptions):
+    """Screened Poisson surface of oriented samples (Kazhdan and Hoppe 2013; Open3D)."""
+    o3d = _open3d()
+
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+    extent = float(np.ptp(P, axis=0).max()) * 1.1
+    depth = opt.depth
+    if depth is None:
+        depth = int(np.clip(np.ceil(np.log2(extent / (opt.cell_pitch * pitch))), 6, 11))
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+    pcd.normals = o3d.utility.Vector3dVector(N)
+    mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
+        pcd, depth=depth, scale=1.1, linear_fit=False,
+        n_threads=int(opt.workers) if opt.workers > 0 else -1)
+    return np.asarray(mesh.vertices, float), np.asarray(mesh.triangles, np.int64), depth
+
+
+def _face_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    t = V[F]
+    return 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+
+
+def _face_graph(F: np.ndarray, n_vertices: int, mask: np.ndarray | None = None):
+    """Labels of the connected components of faces sharing a vertex (optionally of the
+    faces in ``mask`` only): ``(count, labels)``."""
+    idx = np.flatnonzero(mask) if mask is not None else np.arange(len(F))
+    if len(idx) == 0:
+        return 0, np.zeros(0, int), idx
+    # faces and vertices in one bipartite graph
+    rows = np.repeat(np.arange(len(idx)), 3)
+    cols = len(idx) + F[idx].ravel()
+    n = len(idx) + n_vertices
+    g = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+    count, labels = connected_components(g, directed=False)
+    lab = labels[:len(idx)]
+    _, lab = np.unique(lab, return_inverse=True)
+    return int(lab.max()) + 1, lab, idx
+
+
+def _trim(V: np.ndarray, F: np.ndarray, data: np.ndarray, pitch: float, opt: FusionOptions):
+    """Faces to keep: within ``trim_pitch`` pitches of the data, or in an enclosed piece
+    within ``hole_pitch`` pitches (a small hole of the data). Returns ``(keep, holes)``."""
+    d, _ = cKDTree(data).query(V, k=1, distance_upper_bound=opt.hole_pitch * pitch * 2)
+    far_v = d > opt.trim_pitch * pitch
+    far = far_v[F].any(1)
+    keep = ~far
+    n, lab, idx = _face_graph(F, len(V), far)
+    if n == 0:
+        return keep, 0
+    # a far piece is a hole when none of its vertices is far from the data beyond the hole
+    # size and it is enclosed (no vertex on the mesh's open border: Poisson meshes are closed,
+    # so every far piece is enclosed by kept faces or reaches the unseen side)
+    dmax = np.zeros(n)
+    np.maximum.at(dmax, lab, d[F[idx]].max(1))
+    area = np.bincount(lab, weights=_face_areas(V, F[idx]), minlength=n)
+    hole = (dmax <= opt.hole_pitch * pitch) & (area <= (opt.hole_pitch * pitch) ** 2)
+    keep[idx[hole[lab]]] = True
+    return keep, int(hole.sum())
+
+
+def _compact(V: np.ndarray, F: np.ndarray):
+    """Drop unreferenced vertices."""
+    used = np.zeros(len(V), bool)
+    used[F.ravel()] = True
+    new = np.cumsum(used) - 1
+    return V[used], new[F]
+
+
+def _largest_parts(V: np.ndarray, F: np.ndarray, min_part: float):
+    """Drop connected parts under ``min_part`` of the total area."""
+    n, lab, _ = _face_graph(F, len(V))
+    if n == 0:
+        return V, F, 0
+    area = np.bincount(lab, weights=_face_areas(V, F), minlength=n)
+    big = area >= min_part * area.sum()
+    V, F = _compact(V, F[big[lab]])
+    return V, F, int(big.sum())
+
+
+def count_parts(F: np.ndarray, n_vertices: int) -> int:
+    return _face_graph(F, n_vertices)[0]
+
+
+def _vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Area-weighted vertex normals (unit)."""
+    t = V[F]
+    fn = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    N = np.zeros_like(V)
+    for k in range(3):
+        np.add.at(N, F[:, k], fn)
+    return N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
+
+
+def _project(V: np.ndarray, F: np.ndarray, P: np.ndarray, N: np.ndarray, tree: cKDTree,
+             k: int, pitch: float) -> np.ndarray:
+    """Move each vertex onto the samples' surface along its normal (one moving-least-squares
+    step, Alexa et al. 2003): the signed distances ``n_i . (v - p_i)`` of the vertex to the
+    tangent planes of its ``k`` nearest samples, Gaussian-weighted by distance (sigma one
+    quarter pitch) and by normal agreement, averaged; vertices with no sample within a pitch,
+    or whose samples face away, stay."""
+    if k <= 0 or len(V) == 0:
+        return V
+    nv = _vertex_normals(V, F)
+    d, idx = tree.query(V, k=min(k, len(P)), distance_upper_bound=pitch)
+    ok = np.isfinite(d)
+    idx = np.where(ok, idx, 0)
+    Pn, Nn = P[idx], N[idx]
+    agree = np.einsum("nkc,nc->nk", Nn, nv)
+    sigma = 0.25 * pitch
+    w = np.where(ok & (agree > 0.5), np.exp(-0.5 * (np.where(ok, d, 0) / sigma) ** 2), 0.0)
+    s = np.einsum("nkc,nkc->nk", Nn, V[:, None, :] - Pn)
+    wsum = w.sum(1)
+    move = np.where(wsum > 1e-12, (w * s).sum(1) / np.maximum(wsum, 1e-300), 0.0)
+    # the plane distances are along the samples' normals: move along their weighted mean
+    nm = np.einsum("nk,nkc->nc", w, Nn)
+    nm /= np.maximum(np.linalg.norm(nm, axis=1, keepdims=True), 1e-300)
+    move = np.clip(move, -0.5 * pitch, 0.5 * pitch)
+    return V - move[:, None] * nm
+
+
+def decimate(V: np.ndarray, F: np.ndarray, target: int):
+    """Quadric error decimation to at most ``target`` triangles (Garland and Heckbert 1997,
+    Open3D)."""
+    o3d = _open3d()
+
+    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V),
+                                  o3d.utility.Vector3iVector(F.astype(np.int32)))
+    m = m.simplify_quadric_decimation(target_number_of_triangles=int(target))
+    return np.asarray(m.vertices, float), np.asarray(m.triangles, np.int64)
+
+
+def _clean(V: np.ndarray, F: np.ndarray):
+    """Drop degenerate and duplicated faces and unreferenced vertices."""
+    F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])]
+    F = F[_face_areas(V, F) > 0]
+    _, first = np.unique(np.sort(F, axis=1), axis=0, return_index=True)
+    F = F[np.sort(first)]
+    return _compact(V, F)
+
+
+def _watertight(F: np.ndarray) -> bool:
+    """Every edge shared by exactly two faces."""
+    e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(e, axis=0, return_counts=True)
+    return bool(len(counts) and np.all(counts == 2))
+
+
+def _vertex_colours(V: np.ndarray, F: np.ndarray, model, rig, white) -> tuple[np.ndarray, str]:
+    """RGBA uint8 colours (N, 4) from the white-light images, and a note of their source.
+
+    Each vertex is projected into every view (turntable to the rig frame, Tsai camera model)
+    and sampled bilinearly (OpenCV ``remap``) where the view sees it: in the image, facing the
+    camera (``cos > 0.1``) and not occluded (the segment to the camera centre hits no triangle
+    of the mesh, trimesh ray casting). Samples are averaged with weights ``cos^2``; vertices
+    no view sees get the mean colour. The images are read one at a time.
+    """
+    import cv2
+    import trimesh
+
+    from ..io import read_image
+
+    rgba = np.full((len(V), 4), 255, np.uint8)
+    rgba[:, :3] = 180
+    if rig is None or not white:
+        return rgba, "neutral (no rig or white images)"
+    tm = trimesh.Trimesh(V, F, process=False)
+    N = _vertex_normals(V, F)
+    angles = {int(v["index"]): float(v["table_angle"]) for v in model.views}
+    C = np.asarray(rig.camera.center, float)[None]
+    acc, wsum = np.zeros((len(V), 3)), np.zeros(len(V))
+    eps = 1e-3 * float(np.ptp(V, axis=0).max())
+    used = 0
+    for k, path in white.items():
+        if k not in angles or path is None or not Path(path).is_file():
+            continue
+        img = read_image(path)
+        h, w = img.shape[:2]
+        if (w, h) != (rig.camera.width, rig.camera.height):
+            raise NurbscanError(f"{path}: white image of view {k} is {w} x {h} px, but the "
+                                f"camera is {rig.camera.width} x {rig.camera.height}")
+        a = angles[k]
+        d = rig.turntable.from_rig(C, a)[0][None] - V
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        cos = np.einsum("ij,ij->i", N, d)
+        px, valid = rig.camera.project(rig.turntable.to_rig(V, a), return_valid=True)
+        ok = valid & (cos > 0.1) & (px[:, 0] >= 0) & (px[:, 0] <= w - 1) \
+            & (px[:, 1] >= 0) & (px[:, 1] <= h - 1)
+        idx = np.flatnonzero(ok)
+        if len(idx):
+            hit = tm.ray.intersects_any(V[idx] + d[idx] * eps, d[idx])
+            idx = idx[~hit]
+        if not len(idx):
+            continue
+        # maps of 1024 columns (remap wants fewer than 32767 rows and columns)
+        m = np.zeros((-(-len(idx) // 1024) * 1024, 2), np.float32)
+        m[:len(idx)] = px[idx]
+        m = m.reshape(-1, 1024, 2)
+        col = cv2.remap(np.ascontiguousarray(img, np.float32), m[..., 0], m[..., 1],
+                        cv2.INTER_LINEAR).reshape(-1, 3)[:len(idx)]
+        wk = cos[idx] ** 2
+        acc[idx] += wk[:, None] * col
+        wsum[idx] += wk
+        used += 1
+    seen = wsum > 0
+    if not seen.any():
+        return rgba, "neutral (no vertex seen in a white image)"
+    col = np.empty((len(V), 3))
+    col[seen] = acc[seen] / wsum[seen, None]
+    col[~seen] = col[seen].mean(0)
+    rgba[:, :3] = np.clip(np.round(col * 255), 0, 255).astype(np.uint8)
+    return rgba, f"white-light images of {used} views ({seen.mean():.1%} of vertices seen)"
