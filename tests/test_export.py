@@ -233,21 +233,6 @@ def _glb_json(data: bytes) -> dict:
     return json.loads(data[20:20 + n])
 
 
-def _validate_glb(path: Path) -> dict:
-    """The Khronos glTF-Validator's report of a file (skips without node)."""
-    node = shutil.which("node")
-    if node is None:
-        pytest.skip("node (Node.js) is not installed: cannot run the Khronos glTF-Validator")
-    modules = ROOT / ".venv" / "node" / "node_modules"
-    assert (modules / "gltf-validator").is_dir(), (
-        "gltf-validator missing: run `make test` or "
-        "`npm install --prefix .venv/node gltf-validator@2.0.0-dev.3.10`")
-    res = subprocess.run([node, str(ROOT / "tests" / "gltf_validate.cjs"), str(path),
-                          str(modules)], capture_output=True, text=True, timeout=60)
-    assert res.returncode == 0, res.stderr
-    return json.loads(res.stdout)
-
-
 def test_glb_in_metres_passes_khronos_validator(folders, tmp_path):
     out = export_model(folders, tmp_path / "m.glb", patches=True)
     data = out.read_bytes()

@@ -42,19 +42,22 @@ class FusionOptions:
     Attributes
     ----------
     samples : {"patches", "edges"}
-        What is fused: the Gordon patches sampled (4 per knot span, normals from the surfaces)
-        or the raw triangulated edge points (normals estimated from 24 neighbours, turned
-        towards their view's camera).
+        What is fused: the Gordon patches sampled (normals from the surfaces) or the raw
+        triangulated edge points (normals estimated from 24 neighbours, turned towards their
+        view's camera).
+    sample_pitch : float
+        Spacing of the patch samples, in pitches.
     depth : int or None
-        Poisson octree depth; None: the smallest depth whose cell is at most ``cell_pitch``
-        times the grid pitch at the object.
-    cell_pitch : float
-        Poisson cell size, in grid pitches at the object (for ``depth=None``).
+        Poisson octree depth; None: the smallest depth whose cell is at most
+        ``cell_spacing`` sample spacings.
+    cell_spacing : float
+        Poisson cell size, in sample spacings (for ``depth=None``).
     support_pitch : float
         Patch samples farther than this many pitches from the nearest measured point (edge
         point of a network line) are not fused (border rows running past the data).
-    trim_pitch : float
-        Surface farther than this many pitches from the nearest fused sample is cut away.
+    trim_spacing : float
+        Surface farther from the nearest fused sample than this many times the samples'
+        spacing (the larger step of a view's sample grid) is cut away.
     hole_pitch : float
         A cut-away piece enclosed by kept surface whose points all lie within this many
         pitches of the data is a hole of the data and stays closed.
@@ -69,10 +72,11 @@ class FusionOptions:
     """
 
     samples: str = "patches"
+    sample_pitch: float = 0.125
     depth: int | None = None
-    cell_pitch: float = 0.5
+    cell_spacing: float = 2.0
     support_pitch: float = 0.5
-    trim_pitch: float = 0.25
+    trim_spacing: float = 0.75
     hole_pitch: float = 3.0
     min_part: float = 0.002
     project_k: int = 12
@@ -142,10 +146,10 @@ def fuse_model(model, rig=None, white: Mapping[int, str | os.PathLike] | None = 
     opt = options or FusionOptions()
     t0 = time.perf_counter()
     pitch = _pitch(model)
-    P, N = _samples(model, rig, opt, pitch)
+    P, N, spacing = _samples(model, rig, opt, pitch)
     if len(P) < 100:
         raise NurbscanError(f"fusion: {len(P)} samples, too few to fuse a surface")
-    V, F, info = fuse_samples(P, N, P, pitch, opt, progress)
+    V, F, info = fuse_samples(P, N, P, pitch, opt, progress, spacing)
     t1 = time.perf_counter()
     colors, source = _vertex_colours(V, F, model, rig, white)
     info.update({"colour": source, "samples": opt.samples, "n_samples": int(len(P)),
@@ -159,7 +163,7 @@ def fuse_model(model, rig=None, white: Mapping[int, str | os.PathLike] | None = 
 
 def fuse_samples(points: np.ndarray, normals: np.ndarray, data: np.ndarray, pitch: float,
                  options: FusionOptions | None = None,
-                 progress: Callable[[str], None] | None = None):
+                 progress: Callable[[str], None] | None = None, spacing: float | None = None):
     """Fuse oriented samples into one trimmed triangle mesh.
 
     Parameters
@@ -169,7 +173,11 @@ def fuse_samples(points: np.ndarray, normals: np.ndarray, data: np.ndarray, pitc
     data : ndarray (M, 3)
         The measured points the surface may not run past (mm).
     pitch : float
-        Grid pitch at the object, mm: the unit of the trim and hole sizes.
+        Grid pitch at the object, mm: the unit of the hole size and the projection's reach.
+    spacing : float, optional
+        Spacing of one view's samples, mm: the unit of the Poisson cell and the trim distance
+        (default: the median
+        distance from a point of ``data`` to its fourth nearest, :func:`_grid_step`).
 
     Returns
     -------
@@ -177,10 +185,12 @@ def fuse_samples(points: np.ndarray, normals: np.ndarray, data: np.ndarray, pitc
 
     Notes
     -----
-    1. Screened Poisson (Kazhdan and Hoppe 2013) at the depth whose cell is ``cell_pitch``
-       pitches.
-    2. Trim: faces with a vertex more than ``trim_pitch`` pitches from the data go, except
-       enclosed pieces within ``hole_pitch`` pitches of it (small holes stay closed).
+    1. Screened Poisson (Kazhdan and Hoppe 2013) at the depth whose cell is
+       ``cell_spacing`` sample spacings.
+    2. Trim: the surface more than ``trim_spacing`` sample spacings from the data is cut
+       away along
+       the iso-line of the distance, except enclosed pieces within ``hole_pitch`` pitches
+       of it (small holes stay closed).
     3. Parts under ``min_part`` of the area go.
     4. Vertices projected onto the samples (:func:`_project`).
     5. Quadric decimation to ``max_triangles``, then the projection again.
@@ -188,11 +198,12 @@ def fuse_samples(points: np.ndarray, normals: np.ndarray, data: np.ndarray, pitc
     opt = options or FusionOptions()
     say = progress or (lambda _msg: None)
     t = time.perf_counter()
-    V, F, depth = _poisson(points, normals, pitch, opt)
+    if spacing is None:
+        spacing = _grid_step(data)
+    V, F, depth = _poisson(points, normals, opt.cell_spacing * spacing, opt)
     n_poisson = len(F)
     say(f"fusion: Poisson depth {depth}, {n_poisson} triangles ({time.perf_counter() - t:.1f} s)")
-    keep, holes = _trim(V, F, data, pitch, opt)
-    V, F = _compact(V, F[keep])
+    V, F, holes, trim = _trim(V, F, data, pitch, opt.trim_spacing * spacing, opt)
     V, F, parts = _largest_parts(V, F, opt.min_part)
     say(f"fusion: trimmed to the data, {holes} holes closed, {len(F)} triangles in "
         f"{parts} parts ({time.perf_counter() - t:.1f} s)")
@@ -211,7 +222,8 @@ def fuse_samples(points: np.ndarray, normals: np.ndarray, data: np.ndarray, pitc
             "vertices": int(len(V)), "faces": int(len(F)), "parts": count_parts(F, len(V)),
             "area_mm2": round(area, 3), "pitch_mm": round(float(pitch), 4),
             "poisson_depth": int(depth), "poisson_faces": int(n_poisson),
-            "holes_closed": int(holes), "before_decimation": int(n_full),
+            "holes_closed": int(holes), "trim_mm": round(float(trim), 4),
+            "before_decimation": int(n_full),
             "max_triangles": int(opt.max_triangles), "units": "mm", "frame": "object",
             "watertight": _watertight(F)}
     return V, F, info
@@ -256,16 +268,25 @@ def _camera_centres(model, rig) -> dict[int, np.ndarray]:
             for v in model.views}
 
 
-def _surface_samples(model, rig, per_span: int = 4):
-    """Grid samples and unit normals of every Gordon surface (for models without samples),
-    normals turned towards the view's camera (or away from the centroid without a rig)."""
+def _surface_samples(model, rig, spacing: float):
+    """Samples about ``spacing`` mm apart on every Gordon surface, with unit normals.
+
+    The samples per parameter follow the length of the control polygon (an upper bound of
+    the curve length), as :func:`nurbscan.evaluate.table.gordon_cloud` does. Normals are
+    turned towards the view's camera (with the rig), else like the model's nearest sample
+    normal (``Model.normals``, turned towards the cameras at reconstruction), else away from
+    the centroid. Returns ``(points (N, 3), normals (N, 3), view (N,))``.
+    """
     centres = _camera_centres(model, rig)
     pts, nrm, views = [], [], []
     for s in model.surfaces_of("gordon"):
         srf = s["surface"]
+        C = np.asarray(srf.control_points)
+        lu = np.linalg.norm(np.diff(C, axis=0), axis=2).sum(0).max()
+        lv = np.linalg.norm(np.diff(C, axis=1), axis=2).sum(1).max()
+        nu = int(min(max(np.ceil(lu / spacing), 2), 1000)) + 1
+        nv = int(min(max(np.ceil(lv / spacing), 2), 1000)) + 1
         (u0, u1), (v0, v1) = srf.domain
-        nu = max(per_span * (len(np.unique(srf.knots_u)) - 1) + 1, 41)
-        nv = max(per_span * (len(np.unique(srf.knots_v)) - 1) + 1, 41)
         uu, vv = np.meshgrid(np.linspace(u0, u1, nu), np.linspace(v0, v1, nv), indexing="ij")
         pts.append(srf.evaluate(uu.ravel(), vv.ravel()))
         nrm.append(srf.normal(uu.ravel(), vv.ravel()))
@@ -273,35 +294,42 @@ def _surface_samples(model, rig, per_span: int = 4):
     if not pts:
         return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, int)
     P, N, pv = np.concatenate(pts), np.concatenate(nrm), np.concatenate(views)
-    ok = np.isfinite(N).all(1)
+    ok = np.isfinite(N).all(1) & np.isfinite(P).all(1)
     P, N, pv = P[ok], N[ok], pv[ok]
-    ref = np.array([centres[v] for v in pv]) - P if centres else P - P.mean(0)
+    if centres:
+        ref = np.array([centres.get(int(v), P.mean(0)) for v in range(pv.max() + 1)])[pv] - P
+    elif len(model.points):
+        ref = np.asarray(model.normals)[cKDTree(model.points).query(P)[1]]
+    else:
+        ref = P - P.mean(0)
     N = np.where((N * ref).sum(1, keepdims=True) < 0, -N, N)
     return P, N, pv
 
 
 def _samples(model, rig, opt: FusionOptions, pitch: float):
-    """``(points, normals)``: the oriented samples to fuse, those of the patches kept only
-    within ``support_pitch`` pitches of an edge point (a patch's border rows may run past the
-    measured lines)."""
+    """``(points, normals, spacing)``: the oriented samples to fuse and their spacing (mm).
+
+    Patches: every Gordon surface sampled ``sample_pitch`` pitches apart
+    (:func:`_surface_samples`), kept only within ``support_pitch`` pitches of an edge point (a
+    patch's border rows may run past the measured lines). Edges: the triangulated edge
+    points, spaced half a pitch (the lines' spacing)."""
     edges = np.asarray(model.edge_points, float).reshape(-1, 3)
     if opt.samples == "edges":
         if len(edges) == 0:
             raise NurbscanError("fusion: samples 'edges' but the model has no edge points")
         P, N = _edge_normals(edges, np.asarray(model.edge_view, int), _camera_centres(model,
                                                                                       rig))
-    elif len(model.points):
-        P = np.asarray(model.points, float)
-        N = np.asarray(model.normals, float)
+        spacing = 0.5 * pitch
     else:
-        P, N, _ = _surface_samples(model, rig)
+        spacing = opt.sample_pitch * pitch
+        P, N, _ = _surface_samples(model, rig, spacing)
     ok = np.isfinite(P).all(1) & np.isfinite(N).all(1)
     if opt.samples == "patches" and len(edges):
         d, _ = cKDTree(edges).query(P, k=1, distance_upper_bound=opt.support_pitch * pitch)
         ok &= np.isfinite(d)
     P, N = P[ok], N[ok]
     N = N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
-    return P, N
+    return P, N, spacing
 
 
 def _edge_normals(points: np.ndarray, view: np.ndarray, centres: dict, k: int = 24):
@@ -357,7 +385,13 @@ def _open3d():
     return o3d
 
 
-def _poisson(P: np.ndarray, N: np.ndarray, pitch: float, opt: FusionOptions):
+def _grid_step(Q: np.ndarray) -> float:
+    """Median distance to the fourth nearest point (the larger step of a grid), mm."""
+    sub = Q[:: max(1, len(Q) // 5000)]
+    return float(np.median(cKDTree(Q).query(sub, k=min(5, len(Q)))[0][:, -1]))
+
+
+def _poisson(P: np.ndarray, N: np.ndarray, cell: float, opt: FusionOptions):
     """Screened Poisson surface of oriented samples (Kazhdan and Hoppe 2013; Open3D)."""
     o3d = _open3d()
 
@@ -365,7 +399,7 @@ def _poisson(P: np.ndarray, N: np.ndarray, pitch: float, opt: FusionOptions):
     extent = float(np.ptp(P, axis=0).max()) * 1.1
     depth = opt.depth
     if depth is None:
-        depth = int(np.clip(np.ceil(np.log2(extent / (opt.cell_pitch * pitch))), 6, 11))
+        depth = int(np.clip(np.ceil(np.log2(extent / cell)), 5, 11))
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
     pcd.normals = o3d.utility.Vector3dVector(N)
     mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
@@ -396,25 +430,81 @@ def _face_graph(F: np.ndarray, n_vertices: int, mask: np.ndarray | None = None):
     return int(lab.max()) + 1, lab, idx
 
 
-def _trim(V: np.ndarray, F: np.ndarray, data: np.ndarray, pitch: float, opt: FusionOptions):
-    """Faces to keep: within ``trim_pitch`` pitches of the data, or in an enclosed piece
-    within ``hole_pitch`` pitches (a small hole of the data). Returns ``(keep, holes)``."""
+def _trim(V: np.ndarray, F: np.ndarray, data: np.ndarray, pitch: float, t: float,
+          opt: FusionOptions):
+    """Cut the surface back to within ``t`` mm of the data, except enclosed
+    pieces within ``hole_pitch`` pitches of it (small holes of the data stay closed).
+
+    The cut follows the iso-line of the distance to the data (linear along the edges,
+    :func:`_clip`), so the border lies at the trim distance whatever the triangle size.
+    Returns ``(vertices, faces, holes closed, trim distance mm)``.
+    """
     d, _ = cKDTree(data).query(V, k=1, distance_upper_bound=opt.hole_pitch * pitch * 2)
-    far_v = d > opt.trim_pitch * pitch
-    far = far_v[F].any(1)
-    keep = ~far
+    d = np.minimum(d, opt.hole_pitch * pitch * 2)
+    far = (d > t)[F].any(1)
     n, lab, idx = _face_graph(F, len(V), far)
-    if n == 0:
-        return keep, 0
-    # a far piece is a hole when none of its vertices is far from the data beyond the hole
-    # size and it is enclosed (no vertex on the mesh's open border: Poisson meshes are closed,
-    # so every far piece is enclosed by kept faces or reaches the unseen side)
-    dmax = np.zeros(n)
-    np.maximum.at(dmax, lab, d[F[idx]].max(1))
-    area = np.bincount(lab, weights=_face_areas(V, F[idx]), minlength=n)
-    hole = (dmax <= opt.hole_pitch * pitch) & (area <= (opt.hole_pitch * pitch) ** 2)
-    keep[idx[hole[lab]]] = True
-    return keep, int(hole.sum())
+    holes = 0
+    if n:
+        # a far piece is a hole when all of it lies within the hole size of the data and its
+        # area is under the hole size squared (Poisson's closing surface over the unseen
+        # side and the pieces that reach the border of the data are far larger)
+        dmax = np.zeros(n)
+        np.maximum.at(dmax, lab, d[F[idx]].max(1))
+        area = np.bincount(lab, weights=_face_areas(V, F[idx]), minlength=n)
+        hole = (dmax <= opt.hole_pitch * pitch) & (area <= (opt.hole_pitch * pitch) ** 2)
+        d[np.unique(F[idx[hole[lab]]])] = 0.0
+        holes = int(hole.sum())
+    # the distance is not linear along an edge: cut again with the true distances of the
+    # new border points (the border then lies within a few um of t)
+    tree = cKDTree(data)
+    for _ in range(3):
+        V, F, src = _clip(V, F, d - t)
+        new = src < 0
+        d = np.where(new, 0.0, d[np.maximum(src, 0)])
+        if not new.any():
+            break
+        d[new] = tree.query(V[new], k=1)[0]
+        if d[new].max() <= t * 1.01:
+            break
+    return V, F, holes, t
+
+
+def _clip(V: np.ndarray, F: np.ndarray, f: np.ndarray):
+    """The part of a mesh where the vertex function ``f`` (linear along edges) is <= 0
+    (marching triangles). Faces keep their winding; points on shared edges are shared.
+
+    Returns ``(vertices, faces, source)``: ``source`` the index in ``V`` of each vertex, -1
+    for the new points on the cut edges."""
+    inside = f <= 0
+    n_in = inside[F].sum(1)
+    keep = F[n_in == 3]
+    # rotate each cut face so that its odd vertex (the one on its own side) comes first
+    cut = F[(n_in == 1) | (n_in == 2)]
+    cin = inside[cut]
+    odd = np.where(cin.sum(1) == 1, np.argmax(cin, 1), np.argmin(cin, 1))
+    r = (odd[:, None] + np.arange(3)[None, :]) % 3
+    cut = np.take_along_axis(cut, r, 1)
+    one = inside[cut[:, 0]]  # the odd vertex is inside: one vertex in, two out
+    a, b, c = cut[:, 0], cut[:, 1], cut[:, 2]
+    # new vertices on edges (a, b) and (a, c), shared between neighbouring faces
+    edges = np.concatenate([np.stack([a, b], 1), np.stack([a, c], 1)])
+    key = np.sort(edges, 1)
+    uniq, inv = np.unique(key, axis=0, return_inverse=True)
+    i, j = uniq[:, 0], uniq[:, 1]
+    s = f[i] / (f[i] - f[j])
+    P = V[i] + s[:, None] * (V[j] - V[i])
+    ids = len(V) + inv.ravel()
+    pab, pac = ids[:len(cut)], ids[len(cut):]
+    tri_one = np.stack([a, pab, pac], 1)[one]
+    two = ~one  # a outside, b and c inside: the quad (pab, b, c, pac)
+    tri_two = np.concatenate([np.stack([pab, b, c], 1)[two], np.stack([pab, c, pac], 1)[two]])
+    V2 = np.concatenate([V, P])
+    F2 = np.concatenate([keep, tri_one, tri_two])
+    src = np.concatenate([np.arange(len(V)), np.full(len(P), -1)])
+    used = np.zeros(len(V2), bool)
+    used[F2.ravel()] = True
+    new = np.cumsum(used) - 1
+    return V2[used], new[F2], src[used]
 
 
 def _compact(V: np.ndarray, F: np.ndarray):
@@ -489,11 +579,26 @@ def decimate(V: np.ndarray, F: np.ndarray, target: int):
 
 
 def _clean(V: np.ndarray, F: np.ndarray):
-    """Drop degenerate and duplicated faces and unreferenced vertices."""
-    F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])]
-    F = F[_face_areas(V, F) > 0]
-    _, first = np.unique(np.sort(F, axis=1), axis=0, return_index=True)
-    F = F[np.sort(first)]
+    """Drop degenerate and duplicated faces, the faces of vertices whose normal vanishes
+    (faces folded onto each other: glTF wants unit normals) and unreferenced vertices."""
+    ext = float(np.ptp(V, axis=0).max()) if len(V) else 1.0
+    for _ in range(3):
+        F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])]
+        F = F[_face_areas(V, F) > 1e-12 * ext ** 2]
+        _, first = np.unique(np.sort(F, axis=1), axis=0, return_index=True)
+        F = F[np.sort(first)]
+        t = V[F]
+        fn = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        fn /= np.linalg.norm(fn, axis=1, keepdims=True)
+        N = np.zeros_like(V)
+        for k in range(3):
+            np.add.at(N, F[:, k], fn)
+        used = np.zeros(len(V), bool)
+        used[F.ravel()] = True
+        bad = used & (np.linalg.norm(N, axis=1) < 1e-3)
+        if not bad.any():
+            break
+        F = F[~bad[F].any(1)]
     return _compact(V, F)
 
 
