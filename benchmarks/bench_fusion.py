@@ -97,7 +97,8 @@ def bench() -> dict:
                            "gordon mean mm": round(g["mean_mm"], 5),
                            "gordon max sample mm": round(g["max_sample_mm"], 4),
                            "fused / gordon mean": round(f["mean_mm"] / g["mean_mm"], 3)}
-        out["coverage"] = {"fused": round(f["coverage"], 4), "gordon": round(ev["coverage"], 4)}
+        out["coverage"] = {"fused": round(f["coverage"], 4), "gordon": round(ev["coverage"], 4),
+                           "fused - gordon": round(f["coverage"] - ev["coverage"], 4)}
         patches = build_mesh(model, per_span=4).trimesh()
         out["area"] = {"fused mm2": round(f["area_mm2"], 1),
                        "true covered by fused mm2": round(f["true_covered_area_mm2"], 1),

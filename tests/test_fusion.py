@@ -78,7 +78,7 @@ def test_two_coincident_layers_fuse_into_one(two_layers):
 
 
 def test_trimmed_to_the_data_small_hole_closed(two_layers):
-    """The mesh's border within the trim distance (0.75 sample spacings) and a quarter
+    """The mesh's border within the trim distance (one sample spacing) and a quarter
     spacing (the distance to a point set is scalloped between its points; the cut follows it
     along the edges) of the data: under 0.13 pitch, no vertex in the big hole beyond that,
     the small hole covered, nothing of Poisson's closed surface left (every vertex on the cap
@@ -86,7 +86,7 @@ def test_trimmed_to_the_data_small_hole_closed(two_layers):
     P, V, F, info, small, big = two_layers
     d, _ = cKDTree(P).query(V)
     t = info["trim_mm"]
-    assert t == pytest.approx(0.75 * 0.4, rel=1e-3)
+    assert t == pytest.approx(FusionOptions().trim_spacing * 0.4, rel=1e-3)
     e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
     ue, cnt = np.unique(e, axis=0, return_counts=True)
     border = np.unique(ue[cnt == 1])

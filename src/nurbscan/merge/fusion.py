@@ -63,6 +63,10 @@ class FusionOptions:
         pitches of the data is a hole of the data and stays closed.
     min_part : float
         Connected parts smaller than this share of the mesh's area are dropped.
+    subdivide : int
+        Midpoint subdivisions of the trimmed surface before the projection (each quarters
+        the triangles' chord error on curved parts; the decimation then removes the
+        triangles that flat parts do not need).
     project_k : int
         Samples used by the projection of each vertex onto the samples (0: no projection).
     max_triangles : int
@@ -74,11 +78,12 @@ class FusionOptions:
     samples: str = "patches"
     sample_pitch: float = 0.125
     depth: int | None = None
-    cell_spacing: float = 2.0
+    cell_spacing: float = 2.5
     support_pitch: float = 0.5
-    trim_spacing: float = 0.75
+    trim_spacing: float = 1.0
     hole_pitch: float = 3.0
     min_part: float = 0.002
+    subdivide: int = 1
     project_k: int = 12
     max_triangles: int = 300_000
     workers: int = 2
@@ -207,6 +212,8 @@ def fuse_samples(points: np.ndarray, normals: np.ndarray, data: np.ndarray, pitc
     V, F, parts = _largest_parts(V, F, opt.min_part)
     say(f"fusion: trimmed to the data, {holes} holes closed, {len(F)} triangles in "
         f"{parts} parts ({time.perf_counter() - t:.1f} s)")
+    for _ in range(opt.subdivide):
+        V, F = _subdivide(V, F)
     tree = cKDTree(points)
     V = _project(V, F, points, normals, tree, opt.project_k, pitch)
     n_full = len(F)
@@ -565,6 +572,20 @@ def _project(V: np.ndarray, F: np.ndarray, P: np.ndarray, N: np.ndarray, tree: c
     nm /= np.maximum(np.linalg.norm(nm, axis=1, keepdims=True), 1e-300)
     move = np.clip(move, -0.5 * pitch, 0.5 * pitch)
     return V - move[:, None] * nm
+
+
+def _subdivide(V: np.ndarray, F: np.ndarray):
+    """One midpoint subdivision: every triangle into four, edge midpoints shared."""
+    a, b, c = F[:, 0], F[:, 1], F[:, 2]
+    e = np.sort(np.concatenate([np.stack([a, b], 1), np.stack([b, c], 1),
+                                np.stack([c, a], 1)]), axis=1)
+    uniq, inv = np.unique(e, axis=0, return_inverse=True)
+    m = len(V) + inv.ravel()
+    ab, bc, ca = m[:len(F)], m[len(F):2 * len(F)], m[2 * len(F):]
+    V2 = np.concatenate([V, 0.5 * (V[uniq[:, 0]] + V[uniq[:, 1]])])
+    F2 = np.concatenate([np.stack([a, ab, ca], 1), np.stack([ab, b, bc], 1),
+                         np.stack([ca, bc, c], 1), np.stack([ab, bc, ca], 1)])
+    return V2, F2
 
 
 def decimate(V: np.ndarray, F: np.ndarray, target: int):
