@@ -8,6 +8,7 @@ VALIDATOR := $(NODE_DIR)/node_modules/gltf-validator/package.json
 
 .PHONY: demo test bench lint clean
 
+# Open3D (the fused mesh) needs the system library libusb-1.0 (Debian: apt-get install libusb-1.0-0).
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip

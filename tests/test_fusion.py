@@ -78,11 +78,11 @@ def test_two_coincident_layers_fuse_into_one(two_layers):
 
 
 def test_trimmed_to_the_data_small_hole_closed(two_layers):
-    """The mesh's border within the trim distance (one sample spacing) and a quarter
-    spacing (the distance to a point set is scalloped between its points; the cut follows it
-    along the edges) of the data: under 0.13 pitch, no vertex in the big hole beyond that,
-    the small hole covered, nothing of Poisson's closed surface left (every vertex on the cap
-    side)."""
+    """The mesh's border within the trim distance (one sample spacing) and half a spacing
+    of the data (the distance to a point set is scalloped between its points, the cut
+    follows it along the edges and the projection moves it a little): under 1/6 pitch; no
+    vertex in the big hole beyond that, the small hole covered, nothing of Poisson's closed
+    surface left (every vertex on the cap side)."""
     P, V, F, info, small, big = two_layers
     d, _ = cKDTree(P).query(V)
     t = info["trim_mm"]
@@ -90,9 +90,9 @@ def test_trimmed_to_the_data_small_hole_closed(two_layers):
     e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
     ue, cnt = np.unique(e, axis=0, return_counts=True)
     border = np.unique(ue[cnt == 1])
-    assert len(border) > 100 and d[border].max() <= t + 0.15, d[border].max()
+    assert len(border) > 100 and d[border].max() <= t + 0.2, d[border].max()
     assert d.max() < 1.5  # closed holes only
-    assert np.linalg.norm(V - big, axis=1).min() > 8.0 - t - 0.1
+    assert np.linalg.norm(V - big, axis=1).min() > 8.0 - t - 0.2
     assert np.linalg.norm(V - small, axis=1).min() < 0.5
     assert info["holes_closed"] >= 1
     assert np.all(V[:, 2] > RS * math.cos(math.radians(60)) - 1.0)

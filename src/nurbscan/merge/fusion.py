@@ -363,7 +363,7 @@ def _pitch(model) -> float:
     are half a pitch apart on average (two edges per band, band plus gap = pitch), so a
     patch's chord across its ``u`` (``v``) domain over ``(I - 1) / 2`` (``(J - 1) / 2``) is a
     pitch. The median over patches and both directions. A model without edge points
-    (surfaces only) gets eight times the median spacing of its samples.
+    (surfaces only) gets 1/12 of its extent.
     """
     est = []
     if len(model.edge_points):
@@ -378,9 +378,9 @@ def _pitch(model) -> float:
                 est.append(2.0 * np.linalg.norm(X[3] - X[2]) / (nj - 1))
     if est:
         return float(np.median(est))
-    P = _surface_samples(model, None)[0] if not len(model.points) else model.points
-    d, _ = cKDTree(P).query(P[:: max(1, len(P) // 5000)], k=2)
-    return float(8.0 * np.median(d[:, 1]))
+    C = np.concatenate([np.asarray(s["surface"].control_points).reshape(-1, 3)
+                        for s in model.surfaces_of("gordon")] or [np.zeros((1, 3))])
+    return max(float(np.ptp(C, axis=0).max()) / 12.0, 1e-3)
 
 
 def _open3d():
