@@ -1,14 +1,15 @@
 """One triangle mesh of the object for VR: the views' samples fused by screened Poisson (issue 32).
 
-Every view contributes its Gordon patches, sampled with unit normals turned towards its camera
-(``Model.points``, ``Model.normals``), in the object frame. The samples of all views are fused
-into one surface by screened Poisson reconstruction (Kazhdan and Hoppe 2013, Open3D's
+Every view contributes its Gordon patches, sampled 1/8 pitch apart with unit normals turned
+towards its camera, in the object frame; samples more than half a pitch from every triangulated
+edge point (the measured data) are dropped. The samples of all views are fused into one surface
+by screened Poisson reconstruction (Kazhdan and Hoppe 2013, Open3D's
 ``create_from_point_cloud_poisson``), which averages the views' coincident layers into one. The
-implicit surface is closed by construction; it is trimmed back to the measured data (the
-triangulated edge points of the network lines), small holes of the data are left closed, and
-fragments dropped. The vertices are then projected onto the samples (a moving-least-squares
-step, Alexa et al. 2003), the mesh decimated to a triangle budget by quadric error metrics
-(Garland and Heckbert 1997, Open3D) and coloured from the views' white-light images.
+implicit surface is closed by construction; it is cut back to within a sample spacing of the
+samples, small holes of the data are left closed, and fragments dropped. The mesh is
+subdivided once and its vertices projected onto the samples (a moving-least-squares step,
+Alexa et al. 2003), then decimated to a triangle budget by quadric error metrics (Garland and
+Heckbert 1997, Open3D) and coloured from the views' white-light images.
 
 Units: mm, object (turntable) frame, ``z`` up (glTF's ``y`` up is a node rotation at export).
 """
@@ -197,7 +198,8 @@ def fuse_samples(points: np.ndarray, normals: np.ndarray, data: np.ndarray, pitc
        the iso-line of the distance, except enclosed pieces within ``hole_pitch`` pitches
        of it (small holes stay closed).
     3. Parts under ``min_part`` of the area go.
-    4. Vertices projected onto the samples (:func:`_project`).
+    4. ``subdivide`` midpoint subdivisions, then the vertices projected onto the samples
+       (:func:`_project`).
     5. Quadric decimation to ``max_triangles``, then the projection again.
     """
     opt = options or FusionOptions()
@@ -224,8 +226,8 @@ def fuse_samples(points: np.ndarray, normals: np.ndarray, data: np.ndarray, pitc
             f"({time.perf_counter() - t:.1f} s)")
     V, F = _clean(V, F)
     area = float(_face_areas(V, F).sum())
-    info = {"method": "screened Poisson (Open3D), trimmed to the edge points, projected onto "
-                      "the samples, quadric decimation",
+    info = {"method": "screened Poisson (Open3D) of the Gordon samples, trimmed to them, "
+                      "subdivided, projected onto the samples, quadric decimation",
             "vertices": int(len(V)), "faces": int(len(F)), "parts": count_parts(F, len(V)),
             "area_mm2": round(area, 3), "pitch_mm": round(float(pitch), 4),
             "poisson_depth": int(depth), "poisson_faces": int(n_poisson),
