@@ -83,6 +83,16 @@ TARGETS = [
      ">=", 0.95),
     ("oracle bound at zero noise", "detect_bound",
      "noise0_refined_smoothed / coverage_at_rms_0.05", ">=", 0.95),
+    ("fused mesh mean distance to the truth (mm)", "fusion", "accuracy / fused mean mm", "<=",
+     0.015),
+    ("fused mesh mean / Gordon mean", "fusion", "accuracy / fused / gordon mean", "<=", 1.2),
+    ("fused mesh area / true area it covers (no doubled layer)", "fusion",
+     "area / fused / true covered", "<=", 1.03),
+    ("fused mesh coverage less the Gordon patches'", "fusion", "coverage / fused - gordon",
+     ">=", 0.0),
+    ("fused mesh connected parts (teapot)", "fusion", "parts", "<=", 3),
+    ("fused mesh glb size (MB)", "fusion", "glb / MB", "<=", 15.0),
+    ("fused mesh fusion CPU time (s)", "fusion", "fusion / cpu s", "<=", 60.0),
 ]
 #: A slope counts as linear within this distance of 1.
 SLOPE_TOL = 0.2

@@ -216,8 +216,9 @@ def test_image_size_must_match_camera(folders):
 
 
 def test_obj_ply_stl_in_mm(folders, tmp_path):
+    """The per-view patches (``patches=True``) tessellated: watertight, on the sphere."""
     for fmt in ("obj", "ply", "stl"):
-        out = export_model(folders, tmp_path / f"m.{fmt}")
+        out = export_model(folders, tmp_path / f"m.{fmt}", patches=True)
         tm = trimesh.load(out, force="mesh", process=True)
         assert tm.is_watertight, fmt
         r = np.linalg.norm(tm.vertices - CENTRE, axis=1)
@@ -233,7 +234,7 @@ def _glb_json(data: bytes) -> dict:
 
 
 def test_glb_in_metres_passes_khronos_validator(folders, tmp_path):
-    out = export_model(folders, tmp_path / "m.glb")
+    out = export_model(folders, tmp_path / "m.glb", patches=True)
     data = out.read_bytes()
     doc = _glb_json(data)
     assert doc["asset"]["version"] == "2.0"

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import sys
+import time
 from pathlib import Path
 
 FORMATS = ("glb", "obj", "ply", "stl", "3dm", "igs")
@@ -15,9 +17,11 @@ def register(sub) -> None:
         description=(
             "Export a model folder. NURBS for CAD: 3dm (Rhino, rhino3dm) and igs (IGES 5.3, "
             "entities 126/128), in mm, holding the curves and surfaces of --kinds. Meshes for VR: "
-            "one fused triangle mesh of the Gordon patches with vertex colours from the "
-            "white-light images; glb in metres (glTF), obj/ply/stl in mm. STEP is not offered "
-            "(it would need OpenCASCADE at run time). The file is written atomically."))
+            "the model's fused mesh (fused. py; fused now when the folder has none), one "
+            "surface of the object with vertex colours from the white-light images, at most "
+            "--max-triangles; --patches: the per-view Gordon patches tessellated instead. glb "
+            "in metres, y up (glTF), obj/ply/stl in mm. STEP is not offered (it would need "
+            "OpenCASCADE at run time). The file is written atomically."))
     p.add_argument("model", type=Path, help="model folder (with model.json)")
     p.add_argument("--format", choices=FORMATS, default=None,
                    help="output format (default: from the output file's extension)")
@@ -30,8 +34,13 @@ def register(sub) -> None:
     p.add_argument("--points", action="store_true",
                    help="ply only: the merged point cloud (points.npz) with normals and "
                         "colours instead of the mesh")
+    p.add_argument("--patches", action="store_true",
+                   help="mesh formats: the per-view Gordon patches instead of the fused mesh")
+    p.add_argument("--max-triangles", type=int, default=300_000,
+                   help="mesh formats: triangle budget of the fused mesh (300000)")
     p.add_argument("--per-span", type=int, default=4,
-                   help="mesh formats: grid intervals per knot span (4)")
+                   help="mesh formats with --patches: grid intervals per knot span (4)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 
 
@@ -50,9 +59,18 @@ def run(args: argparse.Namespace) -> int:
                             f"--format is {fmt!r}; name the file .{fmt}")
     if args.per_span < 1:
         raise NurbscanError(f"--per-span {args.per_span}: must be at least 1")
+    if args.max_triangles < 100:
+        raise NurbscanError(f"--max-triangles {args.max_triangles}: must be at least 100")
     kinds = ALL_KINDS if args.kinds == "all" else tuple(
         k.strip() for k in args.kinds.split(",") if k.strip())
+    t0 = time.perf_counter()
+
+    def say(msg: str) -> None:
+        if not args.quiet:
+            print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
+
     out = export_model(args.model, args.output, fmt, kinds=kinds, colour=not args.no_colour,
-                       per_span=args.per_span, points=args.points)
+                       per_span=args.per_span, points=args.points, patches=args.patches,
+                       max_triangles=args.max_triangles, progress=say)
     print(f"wrote {out} ({fmt}, {out.stat().st_size} bytes)")
     return 0

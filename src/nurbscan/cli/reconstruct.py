@@ -17,9 +17,10 @@ def register(sub) -> None:
             "Detect the grid in every view of a scan folder, triangulate its labelled edge "
             "lines with the calibrated rig, build the curve network, skins and Gordon "
             "surfaces, merge the views in the turntable frame (the table left out, the "
-            "views' poses registered against each other) and write the model folder "
-            "(model.json, points.npz, model.png, overlays/view_KK_overlay.png with the "
-            "detected lines of each view; docs/model-format.md). Never reads truth/."))
+            "views' poses registered against each other), fuse them into one coloured "
+            "triangle mesh and write the model folder (model.json, points.npz, model.png, "
+            "fused.ply, overlays/view_KK_overlay.png with the detected lines of each view; "
+            "docs/model-format.md). Never reads truth/."))
     p.add_argument("scan", type=Path, help="scan folder (with scan.json)")
     p.add_argument("--calib", type=Path, required=True,
                    help="calibrated rig (calib.json from 'nurbscan calibrate')")
@@ -41,6 +42,10 @@ def register(sub) -> None:
                         "(default 0.5 mm)")
     p.add_argument("--table-radius", type=float, default=150.0, metavar="MM",
                    help="radius of the table's cylinder about the axis (default 150 mm)")
+    p.add_argument("--max-triangles", type=int, default=300_000,
+                   help="triangle budget of the fused mesh (300000)")
+    p.add_argument("--no-fuse", action="store_true",
+                   help="no fused mesh (fused.ply): the per-view patches only")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 
@@ -50,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from ..camera import load_rig
     from ..errors import NurbscanError
     from ..merge import MergeOptions, MergeWarning, RegistrationOptions, TableOptions
+    from ..merge.fusion import FusionOptions
     from ..reconstruct import reconstruct_scan
 
     if args.workers < 0:
@@ -60,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
         table=None if args.keep_table else TableOptions(margin=args.table_margin,
                                                         radius=args.table_radius),
         registration=None if args.no_register else RegistrationOptions())
+    fusion = None if args.no_fuse else FusionOptions(max_triangles=args.max_triangles)
     t0 = time.perf_counter()
     rig = load_rig(args.calib)
 
@@ -71,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
         warnings.simplefilter("ignore", MergeWarning)
         model = reconstruct_scan(args.scan, rig, progress=say, views=args.views,
                                  min_curves=args.min_curves, workers=args.workers,
-                                 overlays=Path(args.output) / "overlays", merge=merge)
+                                 overlays=Path(args.output) / "overlays", merge=merge,
+                                 fusion=fusion)
     if args.quiet:
         for w in model.meta.get("merge", {}).get("warnings", []):
             print(f"nurbscan reconstruct: warning: {w}", file=sys.stderr, flush=True)
@@ -79,5 +87,7 @@ def run(args: argparse.Namespace) -> int:
     path = model.save(args.output)
     n = {k: v for k, v in model.to_dict()["counts"].items()}
     print(f"wrote {path}: {n['gordon']} Gordon patches, "
-          f"{n['horizontal_line'] + n['vertical_line']} curves, {len(model.points)} points")
+          f"{n['horizontal_line'] + n['vertical_line']} curves, {len(model.points)} points"
+          + ("" if model.fused is None else
+             f", fused mesh of {len(model.fused.faces)} triangles (fused.ply)"))
     return 0

@@ -3,8 +3,10 @@
 * NURBS: Rhino ``.3dm`` (:mod:`.rhino`, rhino3dm) and IGES 5.3 (:mod:`.iges`, written by hand:
   entities 126 and 128). STEP is not offered: writing it needs OpenCASCADE at run time, which
   is a test-only dependency of nurbscan.
-* Meshes (:mod:`.mesh`): ``.glb`` (metres), ``.obj``, ``.ply``, ``.stl`` (millimetres), with
-  vertex colours from the scan's white-light images.
+* Meshes (:mod:`.mesh`): ``.glb`` (metres, y up), ``.obj``, ``.ply``, ``.stl`` (millimetres),
+  with vertex colours from the scan's white-light images: by default the model's fused mesh
+  (``fused.ply``, :mod:`nurbscan.merge.fusion`; fused here when the folder has none), or the
+  per-view Gordon patches tessellated (``patches=True``).
 
 :func:`load_model` is the one place that reads a model folder (it uses
 :func:`nurbscan.reconstruct.load_model`) and finds its scan, rig and white images.
@@ -22,6 +24,7 @@ from .rhino import to_rhino_curve, to_rhino_surface, write_3dm
 
 __all__ = ["FORMATS", "NURBS_FORMATS", "MESH_FORMATS", "DEFAULT_KINDS", "ALL_KINDS",
            "MeshResult", "build_mesh", "export_model", "find_rig", "find_white_images",
+           "find_white_paths", "fused_mesh",
            "iges_text", "load_model", "mesh_bytes", "select", "tessellate", "to_rhino_curve",
            "to_rhino_surface", "write_3dm", "write_iges", "write_mesh"]
 
@@ -90,6 +93,51 @@ def find_white_images(model) -> dict:
     return out
 
 
+def find_white_paths(model) -> dict:
+    """``{view index: path of the white image}`` from the scan folder, or {}."""
+    from ..io.atomic import read_json
+
+    scan = _resolve(model.meta.get("source"), model)
+    if scan is None or not (scan / "scan.json").is_file():
+        return {}
+    doc = read_json(scan / "scan.json")
+    return {int(v["index"]): scan / str(v["white"]) for v in doc.get("views", [])
+            if v.get("white") and (scan / str(v["white"])).is_file()}
+
+
+def fused_mesh(model, colour: bool = True, max_triangles: int | None = None,
+               progress=None) -> MeshResult:
+    """The model's fused mesh as a :class:`MeshResult`: ``model.fused`` when the folder has
+    one, else fused now (:func:`nurbscan.merge.fuse_model`, coloured when ``colour`` and the
+    scan can be found); decimated to ``max_triangles`` (quadric error, Open3D) when it has
+    more, the colours taken from the nearest vertex of the full mesh."""
+    import numpy as np
+    from scipy.spatial import cKDTree
+
+    from ..merge.fusion import FusionOptions, decimate, fuse_model
+
+    fm = getattr(model, "fused", None)
+    if fm is None:
+        if progress is not None:
+            progress("the model has no fused mesh (fused.ply): fusing its views")
+        rig = find_rig(model)
+        white = find_white_paths(model) if colour and rig is not None else {}
+        opt = FusionOptions() if max_triangles is None else FusionOptions(
+            max_triangles=max_triangles)
+        fm = fuse_model(model, rig, white, opt, progress=progress)
+    V, F, C = fm.vertices, fm.faces, fm.colors
+    info = {**fm.info}
+    if max_triangles is not None and len(F) > max_triangles:
+        V2, F = decimate(V, F, max_triangles)
+        C = C[cKDTree(V).query(V2)[1]]
+        V = V2
+        info.update(vertices=int(len(V)), faces=int(len(F)))
+    if not colour:
+        C = np.tile(np.array([180, 180, 180, 255], np.uint8), (len(V), 1))
+        info["colour"] = "neutral (--no-colour)"
+    return MeshResult(V, F, C, np.zeros(len(V), int), info)
+
+
 def select(model, kinds=DEFAULT_KINDS) -> tuple[list, list]:
     """``(curves, surfaces)`` as lists of ``(kind, geometry)`` of the requested kinds."""
     bad = set(kinds) - set(ALL_KINDS)
@@ -102,12 +150,15 @@ def select(model, kinds=DEFAULT_KINDS) -> tuple[list, list]:
 
 def export_model(model, path: str | os.PathLike, fmt: str | None = None,
                  kinds=DEFAULT_KINDS, colour: bool = True, per_span: int = 4,
-                 points: bool = False) -> Path:
+                 points: bool = False, patches: bool = False,
+                 max_triangles: int | None = None, progress=None) -> Path:
     """Export a model (a folder or a loaded Model) to ``path`` in ``fmt`` (default: suffix).
 
     NURBS formats (3dm, igs) hold the curves and surfaces of ``kinds``; mesh formats (glb,
-    obj, ply, stl) the fused tessellation of :func:`build_mesh`, coloured from the white-light
-    images when ``colour`` and the scan can be found. The file is written atomically.
+    obj, ply, stl) the fused mesh of the object (:func:`fused_mesh`, at most
+    ``max_triangles``), or with ``patches`` the tessellated per-view patches of
+    :func:`build_mesh`; coloured from the white-light images when ``colour`` and the scan can
+    be found. The file is written atomically.
     """
     path = Path(path)
     fmt = (fmt or path.suffix.lstrip(".")).lower()
@@ -134,6 +185,8 @@ def export_model(model, path: str | os.PathLike, fmt: str | None = None,
         if fmt == "3dm":
             return write_3dm(path, curves, surfaces)
         return write_iges(path, [c for _, c in curves], [s for _, s in surfaces])
+    if not patches:
+        return write_mesh(path, fused_mesh(model, colour, max_triangles, progress), fmt)
     rig = find_rig(model) if colour else None
     images = find_white_images(model) if colour and rig is not None else {}
     mesh = build_mesh(model, rig, images, per_span=per_span)

@@ -14,6 +14,8 @@ that no view sees get the mean colour.
 
 Units: ``.obj``, ``.ply`` and ``.stl`` in millimetres; ``.glb`` in metres (glTF 2.0 specifies
 metres), scaled by 0.001, with ``asset.extras`` = ``{"units": "m", "scale_from_mm": 0.001}``.
+glTF's up axis is ``+y``: the object frame's ``+z`` (the turntable axis) is turned onto it by a
+root node rotating -90 degrees about ``x`` (the positions stay in the object frame).
 """
 
 from __future__ import annotations
@@ -35,6 +37,9 @@ __all__ = ["MESH_FORMATS", "MeshResult", "auto_per_span", "build_mesh", "colour_
 
 MESH_FORMATS = ("glb", "obj", "ply", "stl")
 NEUTRAL = np.array([180, 180, 180], np.uint8)
+#: glTF node rotation (quaternion x, y, z, w) turning the object frame's z-up into glTF's y-up:
+#: -90 degrees about x, (x, y, z) -> (x, z, -y)
+Y_UP = [-float(np.sqrt(0.5)), 0.0, 0.0, float(np.sqrt(0.5))]
 
 
 def patch_grid(s: NurbsSurface, per_span: int = 4) -> tuple[np.ndarray, np.ndarray]:
@@ -286,6 +291,12 @@ def _glb_with_extras(data: bytes, extras: dict) -> bytes:
     rest = data[20 + jlen:]
     doc.setdefault("asset", {})["extras"] = extras
     doc["asset"]["generator"] = "nurbscan (trimesh)"
+    # y up (glTF 2.0 section 3.4): one root node rotating the object frame's z onto y
+    nodes = doc.setdefault("nodes", [])
+    for scene in doc.get("scenes", []):
+        nodes.append({"name": "object_frame_z_up", "rotation": Y_UP,
+                      "children": list(scene.get("nodes", []))})
+        scene["nodes"] = [len(nodes) - 1]
     # bufferView.target: ARRAY_BUFFER for vertex attributes, ELEMENT_ARRAY_BUFFER for indices
     views = doc.get("bufferViews", [])
     for m in doc.get("meshes", []):
@@ -317,7 +328,8 @@ def mesh_bytes(mesh: MeshResult, fmt: str) -> bytes:
         return _glb_with_extras(data, {"units": "m", "scale_from_mm": 0.001,
                                        "generator": "nurbscan", **{
                                            k: v for k, v in mesh.info.items()
-                                           if k in ("patches", "watertight", "colour")}})
+                                           if k in ("patches", "method", "faces", "parts",
+                                                     "watertight", "colour")}})
     tm = mesh.trimesh()
     if fmt == "obj":
         out = tm.export(file_type="obj", include_color=True, include_normals=True)

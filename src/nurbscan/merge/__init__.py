@@ -10,7 +10,9 @@ and points and
 * :mod:`.register` - refines every view's pose jointly (pairwise point-to-plane ICP and a pose
   graph, Open3D), and says when the object is a surface of revolution that cannot fix the
   turn about the axis;
-* :mod:`.views` - all of it on a model (:func:`merge_views`), recorded in ``model.json``.
+* :mod:`.views` - all of it on a model (:func:`merge_views`), recorded in ``model.json``;
+* :mod:`.fusion` - one triangle mesh of the object for VR (screened Poisson of the views'
+  samples, trimmed to the data, coloured from the white-light images).
 """
 
 from .frame import (
@@ -22,6 +24,7 @@ from .frame import (
     rig_to_object,
     surface_to_object,
 )
+from .fusion import FusedMesh, FusionOptions, fuse_model, fuse_samples, read_fused, write_fused
 from .register import Correction, Registration, RegistrationOptions, register_views
 from .table import TableOptions, off_object, patch_off_object
 from .views import (
@@ -36,6 +39,8 @@ from .views import (
 __all__ = [
     "DEFAULT_MERGE",
     "Correction",
+    "FusedMesh",
+    "FusionOptions",
     "MergeOptions",
     "MergeWarning",
     "Registration",
@@ -43,6 +48,8 @@ __all__ = [
     "TableOptions",
     "apply_registration",
     "curve_to_object",
+    "fuse_model",
+    "fuse_samples",
     "leave_out_table",
     "merge_views",
     "moved_curve",
@@ -51,7 +58,9 @@ __all__ = [
     "object_transform",
     "off_object",
     "patch_off_object",
+    "read_fused",
     "register_views",
     "rig_to_object",
     "surface_to_object",
+    "write_fused",
 ]

@@ -1,4 +1,5 @@
-"""The model folder: ``model.json`` (index, curves, surfaces), ``points.npz``, ``model.png``.
+"""The model folder: ``model.json`` (index, curves, surfaces), ``points.npz``, ``model.png``,
+``fused.ply`` (the fused mesh, when built).
 
 The format is specified in docs/model-format.md. Everything is in the object (turntable)
 frame, mm. Every file is written atomically (:mod:`nurbscan.io.atomic`).
@@ -25,6 +26,7 @@ TYPE = "nurbscan.model"
 VERSION = 1
 CURVE_KINDS = ("horizontal_line", "vertical_line")
 SURFACE_KINDS = ("horizontal_skin", "vertical_skin", "gordon")
+FUSED_FILE = "fused.ply"
 
 
 @dataclass
@@ -49,6 +51,8 @@ class Model:
         Triangulated edge points of the network lines, mm; ``edge_view`` (M,) their views.
     meta : dict
         Anything else (light-surface check, settings, source).
+    fused : nurbscan.merge.FusedMesh or None
+        The views fused into one coloured triangle mesh (``fused.ply``), if built.
     """
 
     curves: list = field(default_factory=list)
@@ -60,6 +64,7 @@ class Model:
     edge_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     edge_view: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     meta: dict = field(default_factory=dict)
+    fused: Any = None
 
     def surfaces_of(self, kind: str) -> list:
         """Surface entries of one kind."""
@@ -79,10 +84,13 @@ class Model:
                     for s in self.surfaces]
         counts = {k: len(self.curves_of(k)) for k in CURVE_KINDS}
         counts.update({k: len(self.surfaces_of(k)) for k in SURFACE_KINDS})
-        return {"type": TYPE, "version": VERSION, "frame": "object", "units": "mm",
-                "counts": counts, "views": self.views, "meta": self.meta,
-                "points": "points.npz", "picture": "model.png",
-                "curves": curves, "surfaces": surfaces}
+        doc = {"type": TYPE, "version": VERSION, "frame": "object", "units": "mm",
+               "counts": counts, "views": self.views, "meta": self.meta,
+               "points": "points.npz", "picture": "model.png",
+               "curves": curves, "surfaces": surfaces}
+        if self.fused is not None:
+            doc["fused"] = {"file": FUSED_FILE, **self.fused.info}
+        return doc
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], source: str = "model") -> Model:
@@ -101,12 +109,16 @@ class Model:
         for s in surfaces:
             if s.get("kind") not in SURFACE_KINDS:
                 raise NurbscanError(f"{source}: unknown surface kind {s.get('kind')!r}")
-        return cls(curves=curves, surfaces=surfaces, views=list(d.get("views", [])),
-                   meta=dict(d.get("meta", {})))
+        m = cls(curves=curves, surfaces=surfaces, views=list(d.get("views", [])),
+                meta=dict(d.get("meta", {})))
+        if isinstance(d.get("fused"), Mapping):
+            m.meta["_fused"] = dict(d["fused"])
+        return m
 
     # ------------------------------------------------------------------ folder
     def save(self, folder: str | os.PathLike) -> Path:
-        """Write ``model.json``, ``points.npz`` and ``model.png`` into ``folder``."""
+        """Write ``model.json``, ``points.npz``, ``model.png`` and (with a fused mesh)
+        ``fused.ply`` into ``folder``."""
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         buf = io.BytesIO()
@@ -120,6 +132,10 @@ class Model:
         if ok:
             with atomic_path(folder / "model.png") as tmp:
                 tmp.write_bytes(png.tobytes())
+        if self.fused is not None:
+            from ..merge.fusion import write_fused
+
+            write_fused(folder, self.fused)
         return write_json(folder / "model.json", self.to_dict(), indent=None)
 
 
@@ -136,6 +152,11 @@ def load_model(folder: str | os.PathLike) -> Model:
             m.points, m.normals = z["points"], z["normals"]
             m.point_view = z["point_view"]
             m.edge_points, m.edge_view = z["edge_points"], z["edge_view"]
+    summary = m.meta.pop("_fused", None)
+    if summary is not None and (path.parent / summary.get("file", FUSED_FILE)).is_file():
+        from ..merge.fusion import read_fused
+
+        m.fused = read_fused(path.parent / summary.get("file", FUSED_FILE), summary)
     return m
 
 

@@ -207,7 +207,8 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
                      progress: Callable[[str], None] | None = None,
                      views: list[int] | None = None, workers: int = 1,
                      overlays: str | os.PathLike | None = None,
-                     merge: MergeOptions | None = DEFAULT_MERGE, **view_kwargs) -> Model:
+                     merge: MergeOptions | None = DEFAULT_MERGE, fusion=None,
+                     **view_kwargs) -> Model:
     """Reconstruct every view of a scan folder and merge them in the object frame.
 
     Parameters
@@ -230,6 +231,9 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
         How the views are merged once all are reconstructed (:func:`nurbscan.merge.merge_views`:
         the table left out, the poses registered); None keeps every view where the turntable
         puts it, table and all.
+    fusion : nurbscan.merge.FusionOptions, optional
+        Fuse the merged views into one coloured mesh (``Model.fused``,
+        :func:`nurbscan.merge.fuse_model`); None: no fused mesh.
     **view_kwargs
         Passed to :func:`~nurbscan.reconstruct.view.reconstruct_view`.
     """
@@ -282,5 +286,10 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
         t_merge = time.perf_counter()
         merge_views(model, rig.turntable, merge, progress)
         model.meta["merge"]["merge_s"] = round(time.perf_counter() - t_merge, 3)
+    if fusion is not None:
+        from ..merge.fusion import fuse_model
+
+        model.fused = fuse_model(model, rig, {j["index"]: j["white"] for j in jobs}, fusion,
+                                 progress=progress)
     model.meta["total_s"] = round(time.perf_counter() - t_all, 3)
     return model
