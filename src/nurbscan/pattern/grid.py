@@ -35,6 +35,7 @@ import numpy as np
 from ..errors import NurbscanError
 from ..io import write_image, write_json
 from ..io.atomic import read_json
+from .lines import LINE_PATTERN_TYPE, LineFamily, LinePattern, window_length
 from .sequence import (
     check_field,
     check_primitive,
@@ -470,6 +471,24 @@ class Pattern:
         write_json(json_path, self.to_dict())
         return image_path, json_path
 
+    def to_line_pattern(self) -> LinePattern:
+        """The same grid as a :class:`~nurbscan.pattern.lines.LinePattern`.
+
+        Same size, palette (code k -> colour k), band codes and edges (rising -> ``lower``,
+        falling -> ``upper``) and crossing rule ``"max"``; its window is the smallest n with
+        unique runs of codes along each direction (:func:`~nurbscan.pattern.lines.window_length`),
+        which is at most :attr:`n` and smaller when the grid holds few bands.
+        """
+        fams = {}
+        for name in ("vertical", "horizontal"):
+            edges = self._edges(name)
+            fams[name] = LineFamily(name, tuple(self.band_codes(name).tolist()),
+                                    tuple(edges[:, 0].tolist()), tuple(edges[:, 1].tolist()))
+        window = window_length({k: f.codes for k, f in fams.items()}, max_n=max(self.n, 6))
+        return LinePattern(width=self.width, height=self.height, colours=self.colours,
+                           window=window, vertical=fams["vertical"],
+                           horizontal=fams["horizontal"], crossing=CROSSING)
+
     def summary(self) -> str:
         """One line describing the pattern."""
         nx, ny = self.counts
@@ -480,11 +499,18 @@ class Pattern:
         )
 
 
-def load_pattern(json_path: str | os.PathLike) -> Pattern:
-    """Read a pattern from its JSON sidecar (written by :meth:`Pattern.save`).
+def load_pattern(json_path: str | os.PathLike) -> Pattern | LinePattern:
+    """Read a pattern from its JSON sidecar, by the sidecar's ``"type"``.
 
-    Raises :class:`NurbscanError` naming the file for a missing file, invalid JSON, a missing
-    key, a value of the wrong type, or contents that disagree with each other.
+    ``"nurbscan.pattern"`` (written by :meth:`Pattern.save`) gives a :class:`Pattern`;
+    ``"nurbscan.line-pattern"`` (written by :meth:`LinePattern.save` or
+    ``nurbscan pattern --from-image``) gives a :class:`~nurbscan.pattern.lines.LinePattern`.
+
+    Raises :class:`NurbscanError` naming the file for a missing file, invalid JSON, an unknown
+    type, a missing key, a value of the wrong type, or contents that disagree with each other.
     """
     json_path = Path(json_path)
-    return Pattern.from_dict(read_json(json_path), source=str(json_path))
+    d = read_json(json_path)
+    if isinstance(d, Mapping) and d.get("type") == LINE_PATTERN_TYPE:
+        return LinePattern.from_dict(d, source=str(json_path))
+    return Pattern.from_dict(d, source=str(json_path))
