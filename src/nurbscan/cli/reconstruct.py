@@ -15,9 +15,10 @@ def register(sub) -> None:
         description=(
             "Detect the grid in every view of a scan folder, triangulate its labelled edge "
             "lines with the calibrated rig, build the curve network, skins and Gordon "
-            "surfaces, merge the views in the turntable frame and write the model folder "
-            "(model.json, points.npz, model.png, overlays/view_KK_overlay.png with the "
-            "detected lines of each view; docs/model-format.md). Never reads truth/."))
+            "surfaces, merge the views in the turntable frame (a rig whose turntable is not "
+            "calibrated: one view, in the rig frame) and write the model folder (model.json, "
+            "points.npz, model.png, overlays/view_KK_overlay.png with the detected lines of "
+            "each view; docs/model-format.md). Never reads truth/."))
     p.add_argument("scan", type=Path, help="scan folder (with scan.json)")
     p.add_argument("--calib", type=Path, required=True,
                    help="calibrated rig (calib.json from 'nurbscan calibrate')")
@@ -36,8 +37,10 @@ def register(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Reconstruct ``args.scan`` with the rig ``args.calib`` into ``args.output``."""
+    from ..calibrate import turntable_calibrated
     from ..camera import load_rig
     from ..errors import NurbscanError
+    from ..io.atomic import read_json
     from ..reconstruct import reconstruct_scan
 
     if args.workers < 0:
@@ -46,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
         raise NurbscanError(f"--min-curves {args.min_curves}: must be at least 2")
     t0 = time.perf_counter()
     rig = load_rig(args.calib)
+    tt_ok = turntable_calibrated(read_json(args.calib))
 
     def say(msg: str) -> None:
         if not args.quiet:
@@ -53,7 +57,8 @@ def run(args: argparse.Namespace) -> int:
 
     model = reconstruct_scan(args.scan, rig, progress=say, views=args.views,
                              min_curves=args.min_curves, workers=args.workers,
-                             overlays=Path(args.output) / "overlays")
+                             overlays=Path(args.output) / "overlays",
+                             turntable_calibrated=tt_ok)
     model.meta["calibration"] = str(args.calib)
     path = model.save(args.output)
     n = {k: v for k, v in model.to_dict()["counts"].items()}

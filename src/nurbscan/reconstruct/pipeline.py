@@ -38,10 +38,22 @@ def _patch_samples(surface, per_span: int = 4):
     return X, N
 
 
+class RigFrame:
+    """The rig frame as the model's frame (a turntable that does not turn): a single view
+    reconstructed with a rig whose turntable is not calibrated stays where the camera saw it."""
+
+    def to_rig(self, points, angle: float = 0.0) -> np.ndarray:
+        return np.asarray(points, float)
+
+    def from_rig(self, points, angle: float = 0.0) -> np.ndarray:
+        return np.asarray(points, float)
+
+
 def add_view(model: Model, res: ViewResult, rig, index: int, angle: float,
-             extra: dict | None = None) -> None:
-    """Move one view's curves, surfaces and points into the object frame and add them."""
-    tt = rig.turntable
+             extra: dict | None = None, frame=None) -> None:
+    """Move one view's curves, surfaces and points into the object frame and add them
+    (``frame``: a :class:`RigFrame` keeps them in the rig frame)."""
+    tt = rig.turntable if frame is None else frame
     for direction, ln, c in res.line_curves():
         model.curves.append({"kind": f"{direction}_line", "view": index, "direction": direction,
                              "band": int(ln.band), "edge": int(ln.edge),
@@ -190,7 +202,8 @@ def _view_job(job: dict):
 def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
                      progress: Callable[[str], None] | None = None,
                      views: list[int] | None = None, workers: int = 1,
-                     overlays: str | os.PathLike | None = None, **view_kwargs) -> Model:
+                     overlays: str | os.PathLike | None = None,
+                     turntable_calibrated: bool = True, **view_kwargs) -> Model:
     """Reconstruct every view of a scan folder and merge them in the object frame.
 
     Parameters
@@ -209,6 +222,11 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
     overlays : path-like, optional
         Folder to write each view's detected lines into (``view_KK_overlay.png``, 1536 px
         wide), the picture a person checks the decoding on.
+    turntable_calibrated : bool
+        False for a rig calibrated from free poses only
+        (:func:`nurbscan.calibrate.turntable_calibrated`): a single view is reconstructed in
+        the rig frame (``meta["frame"] = "rig"``); several views are refused
+        (:class:`NurbscanError`), they cannot be merged without the table's axis.
     **view_kwargs
         Passed to :func:`~nurbscan.reconstruct.view.reconstruct_view`.
     """
@@ -242,6 +260,15 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
                      "overlay": None if overlays is None
                      else Path(overlays) / f"view_{idx:02d}_overlay.png"})
     total = len(doc.get("views", []))
+    frame = None
+    if not turntable_calibrated:
+        if len(jobs) > 1:
+            from ..calibrate import TURNTABLE_NOT_CALIBRATED
+
+            raise NurbscanError(f"{scan / 'scan.json'}: {len(jobs)} views cannot be merged, "
+                                f"{TURNTABLE_NOT_CALIBRATED}; reconstruct one view (--views K)")
+        frame = RigFrame()
+        model.meta["frame"] = "rig"
 
     def done(i: int, out) -> None:
         res, nlines, t = out
@@ -256,6 +283,6 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
                                 strict=True):
         if "light_surface" not in model.meta and res.lines:
             model.meta["light_surface"] = light_surface_check(res, rig)
-        add_view(model, res, rig, job["index"], job["angle"], t)
+        add_view(model, res, rig, job["index"], job["angle"], t, frame=frame)
     model.meta["total_s"] = round(time.perf_counter() - t_all, 3)
     return model
