@@ -50,9 +50,13 @@ class DetectionResult:
         0 for an edge of a vertical band ('v': its projector coordinate is an x), 1 for an edge
         of a horizontal band ('h': a y).
     band, edge : ndarray int64 (L,)
-        Band index in the pattern, and 0 rising / 1 falling (dark to light in +x or +y).
+        Band (line) index in the pattern, and 0 rising / 1 falling (dark to light in +x or
+        +y) for an edge of a band, 2 for the centre-line of a thin line
+        (:func:`~nurbscan.detect.detect_lines`: a line too thin for two edges, measured by its
+        ridge).
     coord : ndarray float64 (L,)
-        Exact projector coordinate of the edge (x for 'v', y for 'h'), projector px.
+        Exact projector coordinate of the edge, or of the thin line's centre (edge 2), x for
+        'v', y for 'h', projector px.
     start, stop : ndarray int64 (L,)
         The line's points are ``x[start:stop]``, ``y[start:stop]``.
     votes : ndarray int64 (L,)
@@ -64,7 +68,8 @@ class DetectionResult:
     proj : ndarray float64 (K, 2)
         Their exact projector points (x of the vertical edge, y of the horizontal edge), px.
     cross_band, cross_edge : ndarray int64 (K, 2)
-        (vertical, horizontal) band index and edge of each intersection.
+        (vertical, horizontal) band index and edge (0, 1, or 2 for a centre-line) of each
+        intersection.
     cross_line : ndarray int64 (K, 2)
         (vertical, horizontal) line id of the segment ending nearest to the intersection.
     warnings : tuple of str
@@ -117,7 +122,7 @@ class DetectionResult:
 
     @property
     def point_edge(self) -> np.ndarray:
-        """Edge (0 rising, 1 falling) of each point, (N,)."""
+        """Edge (0 rising, 1 falling, 2 centre-line) of each point, (N,)."""
         return self.edge[self.line]
 
     def polyline(self, i: int) -> np.ndarray:

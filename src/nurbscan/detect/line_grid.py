@@ -1,0 +1,566 @@
+"""Decoding a grid of thin coloured lines (any :class:`~nurbscan.pattern.LinePattern`).
+
+:func:`detect_lines` reads a photograph of a projected grid of thin lines (2 to 4 camera px
+wide) whose colours form a windowed code along each direction (a De Bruijn sequence, a PRMVS):
+
+1. Line centres to sub-pixel (Steger's ridge detector on the largest channel, the one in which
+   every colour of line stands out), split into vertical and horizontal lines by the ridge
+   orientation and linked into chains (:mod:`.ridges`).
+2. Each chain's colour class, learned from the photograph (:mod:`.colour_model`).
+3. Windows: along each pixel row the vertical chains' centres, ordered by x, are the sequence
+   of vertical lines that a horizontal line of the grid crosses (horizontal chains: along
+   columns). ``pattern.window`` consecutive centres whose gaps are alike (no line missing
+   between them: each gap within ``gap_ratio`` of the first) form a window; its colour codes
+   looked up in the family (``LineFamily.lookup``) give the index of its first line, so a vote
+   for the index of each of its chains (:func:`_windows`). The assignment of colour classes
+   to codes and the reading order (projector coordinate growing or falling with the camera
+   coordinate) are those under which most windows occur in the code.
+4. Each chain takes the index most of its votes agree on (``min_votes``, ``min_agreement``).
+5. Consistency (:func:`_consistent`): along the rows, labelled neighbours must hold
+   consecutive indices in the reading order when their gap is one line pitch (two when it is
+   two, ...; the pitch measured from the labelled neighbours themselves). Chains whose
+   neighbour relations mostly fail are refused (label -1), the worst first, until all agree.
+6. Propagation (:func:`_propagate`): an unlabelled chain next to labelled chains in its rows,
+   at the pitch of their labelled neighbours, takes the next index when its colour is that
+   line's colour and enough rows agree; the result is checked again (step 5).
+7. The decoded chains become centre-lines of a :class:`~nurbscan.detect.result.DetectionResult`
+   (``edge = 2``, ``coord`` the line's centre coordinate in the projector), and their
+   crossings (a vertical and a horizontal line fitted locally, intersected) its grid
+   intersections (:func:`line_intersections`).
+
+Bad input (documented behaviour, as :func:`~nurbscan.detect.detect_grid`): an image that is not a
+2-D grey or colour array, holds non-finite values, or a white image of another size raises
+:class:`~nurbscan.errors.NurbscanError`. A photograph in which no grid is found (blank, black,
+unrelated, a pattern that does not match) gives an *empty* result whose ``warnings`` say why
+(and a :class:`UserWarning`); the command line turns an empty result into a one-line error.
+"""
+
+from __future__ import annotations
+
+import warnings as _warnings
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..errors import NurbscanError
+from .colour_model import (
+    ColourModel,
+    all_assignments,
+    chain_classes,
+    chromaticity,
+    fit_colour_model,
+    line_contrast,
+)
+from .result import DetectionResult
+from .ridges import RidgePoints, link_ridges, ridge_points, split_directions
+
+DIRECTIONS = ("vertical", "horizontal")
+
+
+@dataclass(frozen=True)
+class LineDetectOptions:
+    """Options of :func:`detect_lines`, grouped by step.
+
+    Ridges: ``sigma`` (px), ``threshold`` (share of the 99th percentile strength),
+    ``max_angle`` (radians from the direction's mode), ``max_gap`` (runs bridged at crossings),
+    ``min_length`` (centres per chain). Decoding: ``gap_ratio`` (largest ratio of the gaps in a
+    window), ``min_votes`` and ``min_agreement`` (of a chain's label), ``min_class_share``
+    (share of a chain's centres in its colour class), ``propagation_rounds``, ``pitch_tol``
+    (largest difference of a neighbour's gap from a whole number of pitches, in pitches),
+    ``reading``: "forward" (the projector coordinate grows with the camera coordinate, as for
+    an upright camera and projector), "backward" (mirrored) or "either" (the better-scoring).
+    Colour: ``background_offset`` (share of the direction's median line gap; the distance of
+    the background samples, :func:`~nurbscan.detect.colour_model.line_contrast`, clipped to
+    2.5 .. 8 px).
+    Intersections: ``intersection_radius`` (px), ``intersection_k`` (points per fit),
+    ``max_fit_rms`` (px).
+    """
+
+    sigma: float = 1.2
+    threshold: float = 0.15
+    max_angle: float = float(np.radians(30.0))
+    max_gap: int = 9
+    min_length: int = 8
+    gap_ratio: float = 1.4
+    min_votes: int = 4
+    min_agreement: float = 0.8
+    min_class_share: float = 0.6
+    propagation_rounds: int = 6
+    pitch_tol: float = 0.3
+    intersection_radius: float = 8.0
+    intersection_k: int = 10
+    max_fit_rms: float = 0.5
+    background_offset: float = 0.25
+    reading: str = "forward"
+
+
+def _as_float(image, what: str) -> np.ndarray:
+    """(H, W, 3) float32 in [0, 1] from a grey or colour array (uint8, uint16 or float)."""
+    a = np.asarray(image)
+    if a.ndim == 2:
+        a = np.repeat(a[:, :, None], 3, axis=2)
+    if a.ndim != 3 or a.shape[2] not in (3, 4) or a.shape[0] < 16 or a.shape[1] < 16:
+        raise NurbscanError(f"{what}: expected an (H, W, 3) image of at least 16 x 16 px, "
+                            f"got shape {a.shape}")
+    a = a[:, :, :3]
+    if a.dtype == np.uint8:
+        return a.astype(np.float32) / 255.0
+    if a.dtype == np.uint16:
+        return a.astype(np.float32) / 65535.0
+    if a.dtype.kind not in "fiu":
+        raise NurbscanError(f"{what}: unsupported sample type {a.dtype}")
+    a = a.astype(np.float32)
+    if not np.all(np.isfinite(a)):
+        raise NurbscanError(f"{what}: holds NaN or infinite values")
+    return a
+
+
+@dataclass
+class _Chains:
+    """Chained centres of one direction: points ``pts`` (ordered by chain), chain id ``chain``
+    (0 .. C - 1), run and across coordinates, each chain's colour class."""
+
+    pts: RidgePoints
+    chain: np.ndarray
+    run: np.ndarray
+    across: np.ndarray
+    nchains: int
+    cls: np.ndarray | None = None
+
+
+def _family_chains(points: RidgePoints, direction: np.ndarray, order: np.ndarray,
+                   chain: np.ndarray, d: int) -> _Chains:
+    sel = direction[order] == d
+    o, c = order[sel], chain[sel]
+    _, c = np.unique(c, return_inverse=True)
+    p = points.take(o)
+    run = p.iy if d == 0 else p.ix
+    acr = p.x if d == 0 else p.y
+    return _Chains(p, c.astype(np.int64), run.astype(np.int64), acr,
+                   int(c.max()) + 1 if len(c) else 0)
+
+
+def _neighbours(ch: _Chains) -> tuple[np.ndarray, np.ndarray]:
+    """Consecutive centres of different chains along each run: (n - 1,) index pairs into the
+    run-sorted order (``o``) and their gaps; returns (o, gap-after) with ``gap[i]`` the gap from
+    ``o[i]`` to ``o[i + 1]`` (NaN where the run changes or the chain is the same)."""
+    o = np.lexsort((ch.across, ch.run))
+    r, a, c = ch.run[o], ch.across[o], ch.chain[o]
+    gap = np.full(len(o), np.nan)
+    same = (r[1:] == r[:-1]) & (c[1:] != c[:-1])
+    gap[:-1] = np.where(same, a[1:] - a[:-1], np.nan)
+    return o, gap
+
+
+def _windows(ch: _Chains, n: int, gap_ratio: float) -> tuple[np.ndarray, np.ndarray]:
+    """Windows of ``n`` consecutive centres along the runs with alike gaps: (W, n) indices of
+    the chains, in increasing across order, and each window's position in the run-sorted
+    order (W,) (windows j and j + 1 of one run that overlap in n - 1 centres have positions
+    differing by 1)."""
+    o, gap = _neighbours(ch)
+    m = len(o)
+    if m < n:
+        return np.zeros((0, n), np.int64), np.zeros(0, np.int64)
+    starts = np.arange(m - n + 1)
+    ok = np.ones(len(starts), bool)
+    g0 = gap[starts]
+    ok &= np.isfinite(g0) & (g0 > 0)
+    for j in range(1, n - 1):
+        gj = gap[starts + j]
+        with np.errstate(invalid="ignore"):
+            ok &= np.isfinite(gj) & (gj < g0 * gap_ratio) & (gj * gap_ratio > g0)
+    idx = starts[ok][:, None] + np.arange(n)[None, :]
+    return ch.chain[o[idx]], starts[ok]
+
+
+def _lookup(family, windows_codes: np.ndarray) -> np.ndarray:
+    """``family.lookup`` with -1 for windows holding an unknown code (-1)."""
+    if not len(windows_codes):
+        return np.zeros(0, np.int64)
+    out = np.asarray(family.lookup(np.where(windows_codes < 0, 0, windows_codes)), np.int64)
+    out[(windows_codes < 0).any(1)] = -1
+    return out
+
+
+def _votes(wins: np.ndarray, codes: np.ndarray, family, reverse: bool
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """(chain, index) votes of the windows under the chains' codes and a reading order."""
+    n = wins.shape[1]
+    w = wins[:, ::-1] if reverse else wins
+    first = _lookup(family, codes[w])
+    ok = first >= 0
+    vc = w[ok].ravel()
+    vi = (first[ok][:, None] + np.arange(n)[None, :]).ravel()
+    return vc, vi
+
+
+def _run_score(wins: np.ndarray, pos: np.ndarray, codes: np.ndarray, family, reverse: bool
+               ) -> float:
+    """Share of the windows with known codes that occur in the code *and* whose next window
+    along the run (one centre on) occurs at the next index: a wrong assignment of colours to
+    codes makes some windows occur by chance, but rarely two overlapping ones in order."""
+    if not len(wins):
+        return 0.0
+    known = (codes[wins] >= 0).all(1)
+    if not known.any():
+        return 0.0
+    w = wins[:, ::-1] if reverse else wins
+    first = _lookup(family, codes[w])
+    nxt = np.r_[pos[1:] == pos[:-1] + 1, False]
+    step = -1 if reverse else 1
+    follow = nxt & (first >= 0) & (np.r_[first[1:], -1] == first + step)
+    prev = np.r_[False, follow[:-1]]
+    return float((follow | prev).sum() / known.sum())
+
+
+def _choose_codes(ch: _Chains, model: ColourModel, wins: np.ndarray, pos: np.ndarray, family,
+                  min_share: float, readings=(False,), prefer: float = 0.9
+                  ) -> tuple[np.ndarray, bool, float]:
+    """Chain codes and reading order under which most windows read in order
+    (:func:`_run_score`); the hue match (the first assignment) is kept unless another scores
+    more than 1 / ``prefer`` times as high.
+
+    Returns the chain codes (C,), whether the windows read backwards, and the score.
+    """
+    k = len(model.codes)
+    cc, _ = chain_classes(ch.cls, ch.chain, ch.nchains, k, min_share)
+    results = []
+    for cand in all_assignments(model):
+        codes = np.where(cc >= 0, cand.codes[np.maximum(cc, 0)], -1)
+        for rev in readings:
+            results.append((_run_score(wins, pos, codes, family, rev), codes, rev))
+    if not results:
+        return np.full(ch.nchains, -1, np.int64), False, 0.0
+    best = max(results, key=lambda t: t[0])
+    hue_first = results[0] if len(readings) == 1 else max(results[:len(readings)],
+                                                           key=lambda t: t[0])
+    pick = hue_first if hue_first[0] >= prefer * best[0] else best
+    return pick[1], pick[2], pick[0]
+
+
+def _majority(vc: np.ndarray, vi: np.ndarray, nchains: int, count: int, min_votes: int,
+              min_agreement: float) -> np.ndarray:
+    """Label (C,) of each chain: the index most of its votes give, -1 without a clear one."""
+    label = np.full(nchains, -1, np.int64)
+    ok = (vi >= 0) & (vi < count)
+    if not ok.any():
+        return label
+    tab = np.zeros((nchains, count))
+    np.add.at(tab, (vc[ok], vi[ok]), 1.0)
+    tot = tab.sum(1)
+    best = tab.argmax(1)
+    top = tab.max(1)
+    with np.errstate(all="ignore"):
+        good = (top >= min_votes) & (top >= min_agreement * tot)
+    label[good] = best[good]
+    return label
+
+
+def _pairs(ch: _Chains) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Neighbouring centres along the runs: chains (left, right) and gap, px."""
+    o, gap = _neighbours(ch)
+    i = np.nonzero(np.isfinite(gap))[0]
+    return ch.chain[o[i]], ch.chain[o[i + 1]], gap[i]
+
+
+def _consistent(label: np.ndarray, ch: _Chains, reverse: bool, tol: float,
+                rounds: int = 50) -> np.ndarray:
+    """Refuse labels whose neighbours along the runs disagree (module notes, step 5).
+
+    For each pair of labelled neighbours (a, b) along a run, the index step
+    ``s = label[b] - label[a]`` (negated when reading backwards) must be a positive whole number
+    and the gap must be ``s`` pitches, the pitch being the run-local median of ``gap / s`` over
+    the labelled pairs of the same chains (a chain's median pitch); a chain with more failing
+    than agreeing pairs loses its label, the worst first, until none is left.
+    """
+    label = label.copy()
+    left, right, gap = _pairs(ch)
+    sign = -1 if reverse else 1
+    for _ in range(rounds):
+        both = (label[left] >= 0) & (label[right] >= 0)
+        a, b, g = left[both], right[both], gap[both]
+        if not len(a):
+            break
+        step = sign * (label[b] - label[a])
+        pos = step > 0
+        with np.errstate(all="ignore"):
+            per = np.where(pos, g / np.maximum(step, 1), np.nan)
+        # pitch near each chain: the median per-step gap of its labelled pairs
+        pitch = np.full(ch.nchains, np.nan)
+        both_c = np.r_[a[pos], b[pos]]
+        vals = np.r_[per[pos], per[pos]]
+        if len(vals):
+            o = np.lexsort((vals, both_c))
+            bc, vv = both_c[o], vals[o]
+            st = np.r_[0, np.nonzero(bc[1:] != bc[:-1])[0] + 1]
+            en = np.r_[st[1:], len(bc)]
+            pitch[bc[st]] = vv[(st + en - 1) // 2]
+        ref = np.nanmin(np.c_[pitch[a], pitch[b]], axis=1)
+        with np.errstate(all="ignore"):
+            ratio = g / ref
+            good = pos & (np.abs(ratio - step) <= tol * np.maximum(step, 1))
+        bad_n = np.bincount(np.r_[a[~good], b[~good]], minlength=ch.nchains)
+        good_n = np.bincount(np.r_[a[good], b[good]], minlength=ch.nchains)
+        score = bad_n - good_n
+        worst = int(np.argmax(np.where(label >= 0, score, -np.inf)))
+        if score[worst] <= 0:
+            break
+        # drop every chain as bad as the worst at once when many fail (faster), else one
+        drop = (label >= 0) & (score >= max(1, score[worst]))
+        label[drop] = -1
+    return label
+
+
+def _propagate(label: np.ndarray, codes: np.ndarray, ch: _Chains, family, reverse: bool,
+               opts: LineDetectOptions) -> np.ndarray:
+    """Label unlabelled chains from labelled neighbours (module notes, step 6)."""
+    left, right, gap = _pairs(ch)
+    count = family.count
+    fam_codes = np.asarray(family.codes, np.int64)
+    sign = -1 if reverse else 1
+    for _ in range(opts.propagation_rounds):
+        # the labelled pairs' pitch per chain (median gap per index step)
+        both = (label[left] >= 0) & (label[right] >= 0)
+        step = sign * (label[right] - label[left])
+        okp = both & (step > 0)
+        pitch = np.full(ch.nchains, np.nan)
+        if okp.any():
+            per = gap[okp] / step[okp]
+            cc = np.r_[left[okp], right[okp]]
+            vv = np.r_[per, per]
+            sums = np.bincount(cc, vv, minlength=ch.nchains)
+            cnt = np.bincount(cc, minlength=ch.nchains)
+            with np.errstate(all="ignore"):
+                pitch = np.where(cnt > 0, sums / cnt, np.nan)
+        vc, vi = [], []
+        for src, dst, toward in ((left, right, sign), (right, left, -sign)):
+            lab = label[src]
+            ok = (lab >= 0) & (label[dst] < 0) & np.isfinite(pitch[src])
+            with np.errstate(all="ignore"):
+                ok &= np.abs(gap / pitch[src] - 1.0) <= opts.pitch_tol
+            vc.append(dst[ok])
+            vi.append(lab[ok] + toward)
+        vc, vi = np.concatenate(vc), np.concatenate(vi)
+        inside = (vi >= 0) & (vi < count)
+        vc, vi = vc[inside], vi[inside]
+        new = _majority(vc, vi, ch.nchains, count, opts.min_votes, opts.min_agreement)
+        take = (new >= 0) & (label < 0)
+        take &= codes == fam_codes[np.clip(new, 0, count - 1)]
+        if not take.any():
+            break
+        label = label.copy()
+        label[take] = new[take]
+        label = _consistent(label, ch, reverse, opts.pitch_tol)
+    return label
+
+
+def line_intersections(x, y, line, direction, band, coord, radius: float, k: int = 10,
+                       max_fit_rms: float = 0.5):
+    """Crossings of decoded vertical and horizontal centre-lines.
+
+    Vertical line i and horizontal line j cross once. Candidates are the (i, j) pairs with
+    centres closer than ``radius`` px (at the crossing the ridge detector refuses the blob, so
+    the two lines' chains end near it); around the closest pair, each line's ``k`` nearest
+    centres (within ``2 radius``) are fitted by a straight line (least squares,
+    x = a + b (y - y0) for the vertical line, y = c + d (x - x0) for the horizontal one) and
+    the two lines intersected. Pairs whose intersection is farther than ``radius`` from the
+    candidate, or whose fits' RMS residual exceeds ``max_fit_rms`` px, are dropped.
+
+    Returns
+    -------
+    cam : (K, 2) camera px; proj : (K, 2) projector px (the two lines' coordinates);
+    bands : (K, 2) int (vertical, horizontal) indices; lines : (K, 2) int line ids.
+    """
+    empty = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 2), np.int64),
+             np.zeros((0, 2), np.int64))
+    if not len(band) or not len(x):
+        return empty
+    pd, pb = direction[line], band[line]
+    vi, hi = np.nonzero(pd == 0)[0], np.nonzero(pd == 1)[0]
+    if len(vi) < 2 or len(hi) < 2:
+        return empty
+    pairs = cKDTree(np.c_[x[vi], y[vi]]).sparse_distance_matrix(
+        cKDTree(np.c_[x[hi], y[hi]]), radius, output_type="ndarray")
+    if not len(pairs):
+        return empty
+    a, b, dist = vi[pairs["i"]], hi[pairs["j"]], pairs["v"]
+    key = pb[a].astype(np.int64) * 100_000 + pb[b]
+    o = np.lexsort((dist, key))
+    first = np.r_[True, key[o][1:] != key[o][:-1]]
+    a, b = a[o][first], b[o][first]
+    cx, cy = 0.5 * (x[a] + x[b]), 0.5 * (y[a] + y[b])
+    span = float(max(x.max(), y.max()) + 10.0 * radius + 10.0)
+    fits = []
+    for sel, fam, along, across, centre in ((vi, pb[a], y, x, cy), (hi, pb[b], x, y, cx)):
+        tree = cKDTree(np.c_[x[sel] + pb[sel] * span, y[sel]])
+        kk = min(k, len(sel))
+        dd, ii = tree.query(np.c_[cx + fam * span, cy], k=kk)
+        dd, ii = dd.reshape(len(cx), kk), ii.reshape(len(cx), kk)
+        ii = sel[np.minimum(ii, len(sel) - 1)]
+        w = (np.isfinite(dd) & (dd < 2 * radius)).astype(np.float64)
+        t = along[ii] - centre[:, None]
+        v = across[ii]
+        sw = w.sum(1)
+        with np.errstate(all="ignore"):
+            tm = (w * t).sum(1) / sw
+            vm = (w * v).sum(1) / sw
+            stt = (w * (t - tm[:, None]) ** 2).sum(1)
+            slope = (w * (t - tm[:, None]) * (v - vm[:, None])).sum(1) / stt
+            c0 = vm - slope * tm
+            rms = np.sqrt((w * (v - c0[:, None] - slope[:, None] * t) ** 2).sum(1) / sw)
+        fits.append((c0, slope, rms, sw))
+    (av, bv, rv, wv), (ah, bh, rh, wh) = fits
+    # x = av + bv (y - cy); y = ah + bh (x - cx)
+    with np.errstate(all="ignore"):
+        px = (av + bv * (ah - cy) - bv * bh * cx) / (1.0 - bv * bh)
+        py = ah + bh * (px - cx)
+    ok = np.isfinite(px) & np.isfinite(py) & (wv >= 4) & (wh >= 4)
+    with np.errstate(invalid="ignore"):
+        ok &= (np.hypot(px - cx, py - cy) < radius) & (rv <= max_fit_rms) & (rh <= max_fit_rms)
+    lv, lh = line[a], line[b]
+    return (np.c_[px, py][ok], np.c_[coord[lv], coord[lh]][ok], np.c_[band[lv], band[lh]][ok],
+            np.c_[lv, lh][ok])
+
+
+def _offset(ch: _Chains, opts: LineDetectOptions) -> float:
+    """Distance of the background samples from a line centre: ``background_offset`` times the
+    direction's median gap between neighbouring centres, px, clipped to 2.5 .. 8."""
+    _, gap = _neighbours(ch)
+    g = gap[np.isfinite(gap)]
+    med = float(np.median(g)) if len(g) else 20.0
+    return float(np.clip(opts.background_offset * med, 2.5, 8.0))
+
+
+def _empty(size, why: str) -> DetectionResult:
+    _warnings.warn(why, UserWarning, stacklevel=3)
+    return DetectionResult.empty(size, (why,))
+
+
+def _decode_family(ch: _Chains, chroma: np.ndarray, pattern, d: int,
+                   opts: LineDetectOptions) -> tuple[np.ndarray, str | None]:
+    """Labels (C,) of one direction's chains (module notes, steps 2 to 6), or a warning."""
+    name = DIRECTIONS[d]
+    family = pattern.family(name)
+    model = fit_colour_model(chroma, pattern.rgb, pattern.codes_used(name))
+    if model is None or ch.nchains == 0:
+        return np.full(ch.nchains, -1, np.int64), f"too few {name} line centres"
+    ch.cls = model.classify(chroma)
+    wins, pos = _windows(ch, pattern.window, opts.gap_ratio)
+    readings = (False, True) if opts.reading == "either" else (opts.reading == "backward",)
+    codes, reverse, score = _choose_codes(ch, model, wins, pos, family, opts.min_class_share,
+                                          readings)
+    vc, vi = _votes(wins, codes, family, reverse)
+    label = _majority(vc, vi, ch.nchains, family.count, opts.min_votes, opts.min_agreement)
+    # a chain's label must be a line of its own colour
+    fam_codes = np.asarray(family.codes, np.int64)
+    label[(label >= 0) & (codes != fam_codes[np.clip(label, 0, family.count - 1)])] = -1
+    label = _consistent(label, ch, reverse, opts.pitch_tol)
+    label = _propagate(label, codes, ch, family, reverse, opts)
+    return label, None
+
+
+def detect_lines(image, pattern, white=None, options: LineDetectOptions = LineDetectOptions()
+                 ) -> DetectionResult:
+    """Find and decode the thin coloured lines of ``pattern`` in one photograph.
+
+    Parameters
+    ----------
+    image : ndarray (H, W, 3) or (H, W), uint8, uint16 or float in [0, 1]
+        The scene under the projected grid, as the camera wrote it (any gamma).
+    pattern : nurbscan.pattern.LinePattern
+        The projected pattern (its families' codes and centres, palette, window).
+    white : ndarray like ``image``, optional
+        The same view under white light: the line colours are divided by it (albedo).
+    options : LineDetectOptions
+
+    Returns
+    -------
+    DetectionResult
+        Centre-lines (``edge = 2``, ``coord`` the line's projector centre coordinate, ``band``
+        its index in the family, ``votes`` / ``agreement`` of its label) and the grid
+        intersections of the decoded lines; empty with ``warnings`` when no grid is found.
+
+    Notes
+    -----
+    Steps (module notes): ridges -> directions -> chains -> colour classes -> windows and
+    votes -> consistency -> propagation -> centre-lines and intersections.
+    """
+    img = _as_float(image, "image")
+    h, w = img.shape[:2]
+    size = (w, h)
+    wimg = None
+    if white is not None:
+        wimg = _as_float(white, "white image")
+        if wimg.shape != img.shape:
+            raise NurbscanError(f"white image: size {wimg.shape[1]} x {wimg.shape[0]} differs "
+                                f"from the photograph's {w} x {h}")
+    if float(img.max() - img.min()) < 1e-3:
+        return _empty(size, "no grid found: the photograph is blank")
+    pts = ridge_points(img.max(axis=2), options.sigma, options.threshold)
+    if len(pts) < 50:
+        return _empty(size, "no grid found: no thin lines in the photograph")
+    direction, _ = split_directions(pts, options.max_angle)
+    order, chain = link_ridges(pts, direction, max_gap=options.max_gap,
+                               min_length=options.min_length)
+    fams, labels, notes = [], [], []
+    for d in (0, 1):
+        ch = _family_chains(pts, direction, order, chain, d)
+        chroma = chromaticity(line_contrast(img, ch.pts, _offset(ch, options), wimg))
+        if getattr(pattern, DIRECTIONS[d]) is None:
+            lab = np.full(ch.nchains, -1, np.int64)
+        else:
+            lab, note = _decode_family(ch, chroma, pattern, d, options)
+            if note:
+                notes.append(note)
+        fams.append(ch)
+        labels.append(lab)
+    if not any((lab >= 0).any() for lab in labels):
+        why = "no grid found: no line could be decoded"
+        if notes:
+            why += f" ({'; '.join(notes)})"
+        return _empty(size, why)
+    return _result(size, fams, labels, pattern, options)
+
+
+def _result(size, fams, labels, pattern, opts: LineDetectOptions) -> DetectionResult:
+    """The decoded chains as centre-lines, ordered by (direction, index), and their crossings."""
+    xs, ys, ss, lines = [], [], [], []
+    ldir, lband, lcoord, lvotes, lagree = [], [], [], [], []
+    nl = 0
+    for d, (ch, lab) in enumerate(zip(fams, labels, strict=True)):
+        if not (lab >= 0).any():
+            continue
+        centres = pattern.family(DIRECTIONS[d]).centres
+        keep = np.nonzero(lab >= 0)[0]
+        keep = keep[np.argsort(lab[keep], kind="stable")]
+        for c in keep:
+            sel = np.nonzero(ch.chain == c)[0]
+            xs.append(ch.pts.x[sel])
+            ys.append(ch.pts.y[sel])
+            ss.append(ch.pts.strength[sel])
+            lines.append(np.full(len(sel), nl, np.int64))
+            ldir.append(d)
+            lband.append(int(lab[c]))
+            lcoord.append(float(centres[lab[c]]))
+            lvotes.append(len(sel))
+            lagree.append(1.0)
+            nl += 1
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    line = np.concatenate(lines)
+    counts = np.bincount(line, minlength=nl)
+    stop = np.cumsum(counts)
+    start = stop - counts
+    direction = np.asarray(ldir, np.int64)
+    band = np.asarray(lband, np.int64)
+    coord = np.asarray(lcoord, np.float64)
+    cam, proj, cb, cl = line_intersections(x, y, line, direction, band, coord,
+                                           opts.intersection_radius, opts.intersection_k,
+                                           opts.max_fit_rms)
+    return DetectionResult(
+        image_size=tuple(int(v) for v in size), x=x, y=y,
+        strength=np.concatenate(ss).astype(np.float32), line=line, direction=direction,
+        band=band, edge=np.full(nl, 2, np.int64), coord=coord, start=start.astype(np.int64),
+        stop=stop.astype(np.int64), votes=np.asarray(lvotes, np.int64),
+        agreement=np.asarray(lagree, np.float64), cam=cam, proj=proj, cross_band=cb,
+        cross_edge=np.full(cb.shape, 2, np.int64), cross_line=cl, warnings=())
