@@ -248,6 +248,48 @@ def edge_observations(det, kc, rvec, tvec, target: Target, view: int, dc,
     return ProjObs(o.pixels[idx], o.value[idx], o.axis[idx], o.view[idx], o.sign[idx])
 
 
+def consistent_labels(obs: ProjObs, det, kc, rvecs, tvecs, dc, tol_px: float = 4.0,
+                      ransac_px: float = 3.0) -> np.ndarray:
+    """(K,) bool: observations whose decoded label agrees with the view's board homography.
+
+    A line decoded with a wrong label (a block of lines read one window off) puts its points
+    a whole line spacing or more off in the projector. Per view, the board -> projector
+    homography of the decoded grid intersections (``det.cam`` mapped onto the board plane by
+    the view's pose, ``det.proj``) is found by RANSAC (:func:`cv2.findHomography`, threshold
+    ``ransac_px`` projector px; Fischler and Bolles 1981), and an observation is kept when its
+    projector coordinate is within ``tol_px`` of the homography's prediction at its board
+    point (lens distortion over a board moves the prediction by well under the lines'
+    spacing). Views with fewer than 8 intersections keep all their observations.
+
+    Parameters
+    ----------
+    obs : ProjObs
+        Observations of ONE view (its ``view`` index into ``rvecs``, ``tvecs``).
+    det : nurbscan.detect.DetectionResult
+        That view's detection (its ``cam`` and ``proj`` intersections).
+    kc, rvecs, tvecs, dc
+        Camera intrinsics, board poses (P, 3) and camera pixel pitch.
+    """
+    import cv2
+
+    cam, prj = np.asarray(det.cam, float), np.asarray(det.proj, float)
+    if len(obs.view) == 0 or len(cam) < 8:
+        return np.ones(len(obs.view), bool)
+    v = int(obs.view[0])
+    z = np.zeros(len(cam))
+    xy = board_frame_points(kc, rvecs, tvecs, ProjObs(cam, z, z.astype(np.int64),
+                                                      np.full(len(cam), v)), *dc)
+    ok = np.all(np.isfinite(xy), axis=1)
+    H, _ = cv2.findHomography(xy[ok], prj[ok], cv2.RANSAC, ransac_px)
+    if H is None:
+        return np.ones(len(obs.view), bool)
+    xo = board_frame_points(kc, rvecs, tvecs, obs, *dc)
+    q = np.column_stack([xo, np.ones(len(xo))]) @ H.T
+    q = q[:, :2] / q[:, 2:]
+    r = np.take_along_axis(q, obs.axis[:, None], axis=1)[:, 0] - obs.value
+    return np.abs(r) < tol_px
+
+
 def corner_weights(per_view_rms: np.ndarray) -> np.ndarray:
     """Weights (P,) of each view's chessboard corners in the joint bundle.
 
@@ -360,7 +402,8 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
                    exclude: tuple[int, ...] = (), camera_pitch: float | None = None,
                    projector_pitch: float | None = None, max_points_per_view: int = 1500,
                    progress: Callable[[str], None] | None = None,
-                   workers: int = 1, require_all: bool = False) -> CalibrationResult:
+                   workers: int = 1, require_all: bool = False,
+                   pose_cache: dict | None = None) -> CalibrationResult:
     """Calibrate camera, projector and turntable from a scan's calibration images.
 
     Parameters
@@ -385,6 +428,10 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
     require_all : bool
         Refuse (:class:`NurbscanError` naming the file) a pose whose white-light image shows
         no target, instead of leaving it out with a warning.
+    pose_cache : dict, optional
+        The caller's store of what was read from each pose's images (corners, decoded grid,
+        white area), keyed by the image paths: filled on the first call and reused by later
+        calls with the same dict (e.g. leave-one-pose-out calibrations of one set).
 
     Returns
     -------
@@ -418,12 +465,16 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
     jobs = [(root / p["white"], root / p["grid"], pattern, target, require_all) for p in poses]
 
     def seen(i: int, res) -> None:
-        _say(progress, f"[{time.perf_counter() - t0:6.1f} s] {jobs[i][1].name}: "
+        _say(progress, f"[{time.perf_counter() - t0:6.1f} s] {todo[i][1].name}: "
              + ("target not found" if res[1] is None else f"{res[2].nlines} lines"))
 
     missing = []
-    for p, (shape, c, det, area) in zip(poses, process_map(_read_pose, jobs, workers,
-                                                             done=seen), strict=True):
+    cache = {} if pose_cache is None else pose_cache
+    todo = [j for j in jobs if (str(j[0]), str(j[1])) not in cache]
+    for j, r in zip(todo, process_map(_read_pose, todo, workers, done=seen), strict=True):
+        cache[(str(j[0]), str(j[1]))] = r
+    for p, j in zip(poses, jobs, strict=True):
+        shape, c, det, area = cache[(str(j[0]), str(j[1]))]
         size = size or shape
         if c is None:
             missing.append(str(root / p["white"]))
@@ -468,9 +519,16 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
 
     obs = []
     rng = np.random.default_rng(0)
+    lines, n_label = _is_line_pattern(pattern), 0
     for i, (gpath, det) in enumerate(dets):
         o = edge_observations(det, cam.kc, cam.rvecs[i], cam.tvecs[i], target, i, dc,
                               max_points_per_view, rng=rng, white_area=areas[i])
+        if lines:
+            # thin-line grids: labels checked against the view's board homography
+            good = consistent_labels(o, det, cam.kc, cam.rvecs, cam.tvecs, dc)
+            n_label += int(np.sum(~good))
+            o = ProjObs(o.pixels[good], o.value[good], o.axis[good], o.view[good],
+                        o.sign[good])
         if len(o.view) < 50:
             msg = f"{gpath}: projected grid not decoded on the target; pose not used for the " \
                   "projector"
@@ -560,6 +618,7 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
         "projector_max_px": float(np.max(np.abs(rpj))),
         "projector_observations": int(len(rpj)),
         "projector_outliers": n_out,
+        "projector_label_rejects": n_label,
         # centre-lines of thin lines (sign 0) have no band-edge bias
         "edge_bias_projector_px": {"x": float(st.shrink[0]), "y": float(st.shrink[1]),
                                    "note": "falling band edges read +bias, rising -bias"}
