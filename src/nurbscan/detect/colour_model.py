@@ -193,15 +193,17 @@ def all_assignments(model: ColourModel):
 
 
 def chain_classes(cls: np.ndarray, chain: np.ndarray, nchains: int, k: int,
-                  min_share: float = 0.6) -> tuple[np.ndarray, np.ndarray]:
+                  min_share: float = 0.6, counts: bool = False):
     """The class most of each chain's centres take, (C,) int (-1 when fewer than ``min_share``
-    of them agree), and that share (C,)."""
+    of them agree), and that share (C,); with ``counts`` also the (C, k) class counts."""
     ok = cls >= 0
-    counts = np.zeros((nchains, k))
-    np.add.at(counts, (chain[ok], cls[ok]), 1.0)
-    tot = counts.sum(1)
-    best = counts.argmax(1)
+    tab = np.zeros((nchains, k))
+    np.add.at(tab, (chain[ok], cls[ok]), 1.0)
+    tot = tab.sum(1)
+    best = tab.argmax(1)
     with np.errstate(all="ignore"):
-        share = np.where(tot > 0, counts.max(1) / tot, 0.0)
+        share = np.where(tot > 0, tab.max(1) / tot, 0.0)
     best[share < min_share] = -1
+    if counts:
+        return best, share, tab
     return best, share

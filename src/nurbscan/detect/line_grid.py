@@ -53,7 +53,7 @@ from .colour_model import (
     line_contrast,
 )
 from .result import DetectionResult
-from .ridges import RidgePoints, link_ridges, ridge_points, split_directions
+from .ridges import RidgePoints, gap_links, link_ridges, ridge_points, split_directions
 
 DIRECTIONS = ("vertical", "horizontal")
 
@@ -66,10 +66,14 @@ class LineDetectOptions:
     ``max_angle`` (radians from the direction's mode), ``max_gap`` (runs bridged at crossings),
     ``min_length`` (centres per chain). Decoding: ``gap_ratio`` (largest ratio of the gaps in a
     window), ``min_votes`` and ``min_agreement`` (of a chain's label), ``min_class_share``
-    (share of a chain's centres in its colour class), ``propagation_rounds``, ``pitch_tol``
+    (share of a chain's centres in its colour class), ``propagate_share`` (least share of a
+    chain's centres in the colour of a label it takes from a neighbour or a collinear piece),
+    ``propagation_rounds``, ``pitch_tol``
     (largest difference of a neighbour's gap from a whole number of pitches, in pitches),
     ``reading``: "forward" (the projector coordinate grows with the camera coordinate, as for
     an upright camera and projector), "backward" (mirrored) or "either" (the better-scoring).
+    Pieces of one line: ``piece_gap`` (longest gap, runs) and ``piece_offset`` (px, grown by
+    2 % of the gap) between collinear chains that must share a label.
     Colour: ``background_offset`` (share of the direction's median line gap; the distance of
     the background samples, :func:`~nurbscan.detect.colour_model.line_contrast`, clipped to
     2.5 .. 8 px).
@@ -93,6 +97,9 @@ class LineDetectOptions:
     max_fit_rms: float = 0.5
     background_offset: float = 0.25
     reading: str = "forward"
+    piece_gap: int = 40
+    propagate_share: float = 0.3
+    piece_offset: float = 1.2
 
 
 def _as_float(image, what: str) -> np.ndarray:
@@ -221,7 +228,8 @@ def _choose_codes(ch: _Chains, model: ColourModel, wins: np.ndarray, pos: np.nda
     (:func:`_run_score`); the hue match (the first assignment) is kept unless another scores
     more than 1 / ``prefer`` times as high.
 
-    Returns the chain codes (C,), whether the windows read backwards, and the score.
+    Returns the chain codes (C,), whether the windows read backwards, the score and the code of
+    each colour class (K,).
     """
     k = len(model.codes)
     cc, _ = chain_classes(ch.cls, ch.chain, ch.nchains, k, min_share)
@@ -229,14 +237,14 @@ def _choose_codes(ch: _Chains, model: ColourModel, wins: np.ndarray, pos: np.nda
     for cand in all_assignments(model):
         codes = np.where(cc >= 0, cand.codes[np.maximum(cc, 0)], -1)
         for rev in readings:
-            results.append((_run_score(wins, pos, codes, family, rev), codes, rev))
+            results.append((_run_score(wins, pos, codes, family, rev), codes, rev, cand.codes))
     if not results:
-        return np.full(ch.nchains, -1, np.int64), False, 0.0
+        return np.full(ch.nchains, -1, np.int64), False, 0.0, model.codes
     best = max(results, key=lambda t: t[0])
     hue_first = results[0] if len(readings) == 1 else max(results[:len(readings)],
                                                            key=lambda t: t[0])
     pick = hue_first if hue_first[0] >= prefer * best[0] else best
-    return pick[1], pick[2], pick[0]
+    return pick[1], pick[2], pick[0], pick[3]
 
 
 def _majority(vc: np.ndarray, vi: np.ndarray, nchains: int, count: int, min_votes: int,
@@ -312,7 +320,69 @@ def _consistent(label: np.ndarray, ch: _Chains, reverse: bool, tol: float,
     return label
 
 
-def _propagate(label: np.ndarray, codes: np.ndarray, ch: _Chains, family, reverse: bool,
+def _run_order(ch: _Chains, max_apart: int = 64
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Chain pairs (lo, hi), lo < hi, that share runs, with the number of runs in which lo lies
+    before hi (smaller across) and after it: (P,) each. Any two centres of one run count, not
+    only neighbours (up to ``max_apart`` centres apart in the run)."""
+    o = np.lexsort((ch.across, ch.run))
+    r, c = ch.run[o], ch.chain[o]
+    aa, bb = [], []
+    for k in range(1, max_apart + 1):
+        same = r[k:] == r[:-k]
+        if not same.any():
+            break
+        a, b = c[:-k][same], c[k:][same]
+        ok = a != b
+        aa.append(a[ok])
+        bb.append(b[ok])
+    z = np.zeros(0, np.int64)
+    if not aa:
+        return z, z, z, z
+    a, b = np.concatenate(aa), np.concatenate(bb)
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    key = lo * ch.nchains + hi
+    uk, inv = np.unique(key, return_inverse=True)
+    nb = np.bincount(inv, (a == lo).astype(np.float64), minlength=len(uk)).astype(np.int64)
+    nt = np.bincount(inv, minlength=len(uk)).astype(np.int64)
+    return uk // ch.nchains, uk % ch.nchains, nb, nt - nb
+
+
+def _ordered(label: np.ndarray, ch: _Chains, reverse: bool, min_runs: int = 3,
+             pairs=None) -> np.ndarray:
+    """Refuse labels that contradict the order of the lines along the runs.
+
+    Two chains that share at least ``min_runs`` runs lie in one order along them (the one most
+    of their shared runs show); their indices must be in that order (growing in the reading
+    direction). Misread colours over a whole region can make a run of windows that is
+    consistent among itself but shifted (a block of lines read as another part of the code):
+    its chains contradict the order of the correctly labelled chains beyond their own
+    neighbours. The chain contradicting the most partners loses its label (ties: the one with
+    fewer agreeing partners), until none contradicts any.
+    """
+    lo, hi, nb, na = _run_order(ch) if pairs is None else pairs
+    keep = (nb + na >= min_runs) & (nb != na)
+    lo, hi, lo_first = lo[keep], hi[keep], nb[keep] > na[keep]
+    label = label.copy()
+    sign = -1 if reverse else 1
+    for _ in range(ch.nchains):
+        both = (label[lo] >= 0) & (label[hi] >= 0)
+        if not both.any():
+            break
+        d = sign * (label[hi] - label[lo])
+        bad = both & np.where(lo_first, d <= 0, d >= 0)
+        if not bad.any():
+            break
+        good = both & ~bad
+        nbad = np.bincount(np.r_[lo[bad], hi[bad]], minlength=ch.nchains)
+        ngood = np.bincount(np.r_[lo[good], hi[good]], minlength=ch.nchains)
+        score = nbad * (ch.nchains + 1) - ngood
+        worst = int(np.argmax(np.where(label >= 0, score, np.iinfo(np.int64).min)))
+        label[worst] = -1
+    return label
+
+
+def _propagate(label: np.ndarray, colour_ok, ch: _Chains, family, reverse: bool,
                opts: LineDetectOptions) -> np.ndarray:
     """Label unlabelled chains from labelled neighbours (module notes, step 6)."""
     left, right, gap = _pairs(ch)
@@ -346,12 +416,53 @@ def _propagate(label: np.ndarray, codes: np.ndarray, ch: _Chains, family, revers
         vc, vi = vc[inside], vi[inside]
         new = _majority(vc, vi, ch.nchains, count, opts.min_votes, opts.min_agreement)
         take = (new >= 0) & (label < 0)
-        take &= codes == fam_codes[np.clip(new, 0, count - 1)]
+        take &= colour_ok(np.arange(ch.nchains), fam_codes[np.clip(new, 0, count - 1)])
         if not take.any():
             break
         label = label.copy()
         label[take] = new[take]
         label = _consistent(label, ch, reverse, opts.pitch_tol)
+    return label
+
+
+def _collinear(ch: _Chains, max_gap: int, offset: float) -> tuple[np.ndarray, np.ndarray]:
+    """Chain pairs (a, b) where b continues a along its line across a gap of up to ``max_gap``
+    runs (a black square, a shadow; :func:`~nurbscan.detect.ridges.gap_links`)."""
+    if ch.nchains < 2:
+        z = np.zeros(0, np.int64)
+        return z, z
+    o = np.arange(len(ch.chain))  # ch's centres are grouped by chain and ordered by run
+    starts = np.r_[0, np.nonzero(ch.chain[1:] != ch.chain[:-1])[0] + 1]
+    stops = np.r_[starts[1:], len(o)]
+    a, b = gap_links(ch.run, ch.across, o, starts, stops, max_gap, offset, k=8,
+                     grow=0.02)
+    return ch.chain[starts[a]], ch.chain[starts[b]]
+
+
+def _collinear_labels(label: np.ndarray, colour_ok, ch: _Chains, family, pairs,
+                      ) -> np.ndarray:
+    """Pieces of one line hold one label: of two collinear chains with different labels the
+    shorter loses its label; an unlabelled chain continuing a labelled one takes its label
+    when its colour is that line's colour (repeated along runs of pieces)."""
+    a, b = pairs
+    if not len(a):
+        return label
+    label = label.copy()
+    length = np.bincount(ch.chain, minlength=ch.nchains)
+    fam_codes = np.asarray(family.codes, np.int64)
+    clash = (label[a] >= 0) & (label[b] >= 0) & (label[a] != label[b])
+    short = np.where(length[a] < length[b], a, b)[clash]
+    label[short] = -1
+    for _ in range(8):
+        changed = False
+        for src, dst in ((a, b), (b, a)):
+            ok = (label[src] >= 0) & (label[dst] < 0)
+            ok &= colour_ok(dst, fam_codes[np.clip(label[src], 0, family.count - 1)])
+            if ok.any():
+                label[dst[ok]] = label[src[ok]]
+                changed = True
+        if not changed:
+            break
     return label
 
 
@@ -448,15 +559,32 @@ def _decode_family(ch: _Chains, chroma: np.ndarray, pattern, d: int,
     ch.cls = model.classify(chroma)
     wins, pos = _windows(ch, pattern.window, opts.gap_ratio)
     readings = (False, True) if opts.reading == "either" else (opts.reading == "backward",)
-    codes, reverse, score = _choose_codes(ch, model, wins, pos, family, opts.min_class_share,
+    codes, reverse, score, class_codes = _choose_codes(ch, model, wins, pos, family,
+                                                       opts.min_class_share,
                                           readings)
     vc, vi = _votes(wins, codes, family, reverse)
     label = _majority(vc, vi, ch.nchains, family.count, opts.min_votes, opts.min_agreement)
     # a chain's label must be a line of its own colour
     fam_codes = np.asarray(family.codes, np.int64)
     label[(label >= 0) & (codes != fam_codes[np.clip(label, 0, family.count - 1)])] = -1
-    label = _consistent(label, ch, reverse, opts.pitch_tol)
-    label = _propagate(label, codes, ch, family, reverse, opts)
+    pairs = _run_order(ch)
+    pieces = _collinear(ch, opts.piece_gap, opts.piece_offset)
+    label = _ordered(_consistent(label, ch, reverse, opts.pitch_tol), ch, reverse, pairs=pairs)
+    # a chain can take a neighbour's or a piece's label when a share propagate_share of its
+    # centres have that line's colour (a line's colour drifts along it: the classes overlap)
+    _, _, counts = chain_classes(ch.cls, ch.chain, ch.nchains, len(class_codes),
+                                 opts.min_class_share, counts=True)
+    frac = counts / np.maximum(counts.sum(1, keepdims=True), 1.0)
+    code_frac = np.zeros((ch.nchains, len(pattern.colours)))
+    code_frac[:, class_codes] = frac
+
+    def colour_ok(chains, code):
+        return code_frac[chains, code] >= opts.propagate_share
+
+    label = _collinear_labels(label, colour_ok, ch, family, pieces)
+    label = _propagate(label, colour_ok, ch, family, reverse, opts)
+    label = _collinear_labels(label, colour_ok, ch, family, pieces)
+    label = _ordered(_consistent(label, ch, reverse, opts.pitch_tol), ch, reverse, pairs=pairs)
     return label, None
 
 

@@ -315,11 +315,16 @@ def _end_fits(run, acr, o, starts, stops, k: int):
     return out[0], out[1], nch
 
 
-def _gap_links(run, acr, o, starts, stops, max_gap: int, max_offset: float, k: int = 6
-               ) -> tuple[np.ndarray, np.ndarray]:
+def gap_links(run, acr, o, starts, stops, max_gap: int, max_offset: float, k: int = 6,
+              grow: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Pairs of chains (a, b) where chain b starts within ``max_gap`` runs after chain a ends
-    and both chains' end fits, extrapolated to the middle of the gap, meet within
-    ``max_offset`` px (the slopes agreeing too)."""
+    and both chains' end fits (the last / first ``k`` centres), extrapolated to the middle of
+    the gap, meet within ``max_offset + grow * gap`` px (the slopes agreeing within 0.3).
+
+    ``run``, ``acr`` (N,): run index and across coordinate of the centres; ``o`` (M,) the
+    centres ordered by chain and run, chain c being ``o[starts[c]:stops[c]]``. Each chain
+    keeps at most one successor and one predecessor, the closest.
+    """
     (r0, a0, b0), (r1, a1, b1), nch = _end_fits(run, acr, o, starts, stops, k)
     if nch < 2:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
@@ -338,7 +343,7 @@ def _gap_links(run, acr, o, starts, stops, max_gap: int, max_offset: float, k: i
             pa = a1[a] + b1[a] * (mid_r - r1[a])
             pb = a0[b] + b0[b] * (mid_r - r0[b])
             err = np.abs(pa - pb)
-            ok = (err <= max_offset) & (np.abs(b1[a] - b0[b]) < 0.3) & (a != b)
+            ok = (err <= max_offset + grow * gap) & (np.abs(b1[a] - b0[b]) < 0.3) & (a != b)
             src.append(a[ok])
             dst.append(b[ok])
             cost.append(err[ok] + 0.1 * gap)
@@ -388,7 +393,7 @@ def link_ridges(points: RidgePoints, direction: np.ndarray, max_offset: float = 
         comp = _components(len(sel), s, t)
         o, c, starts, stops = _order(comp, run, acr)
         if max_gap >= 2:
-            a, b = _gap_links(run, acr, o, starts, stops, max_gap, gap_offset)
+            a, b = gap_links(run, acr, o, starts, stops, max_gap, gap_offset)
             merged = _components(len(starts), a, b)
             comp = merged[comp]
             o, c, starts, stops = _order(comp, run, acr)
