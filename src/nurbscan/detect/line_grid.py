@@ -68,6 +68,7 @@ class LineDetectOptions:
     window), ``min_votes`` and ``min_agreement`` (of a chain's label), ``min_class_share``
     (share of a chain's centres in its colour class), ``propagate_share`` (least share of a
     chain's centres in the colour of a label it takes from a neighbour or a collinear piece),
+    ``max_fill`` (most lines labelled by counting between two decoded ones, 0 or 1: none),
     ``propagation_rounds``, ``pitch_tol``
     (largest difference of a neighbour's gap from a whole number of pitches, in pitches),
     ``reading``: "forward" (the projector coordinate grows with the camera coordinate, as for
@@ -99,6 +100,7 @@ class LineDetectOptions:
     reading: str = "forward"
     piece_gap: int = 40
     propagate_share: float = 0.3
+    max_fill: int = 6
     piece_offset: float = 1.2
 
 
@@ -425,6 +427,57 @@ def _propagate(label: np.ndarray, colour_ok, ch: _Chains, family, reverse: bool,
     return label
 
 
+def _fill_between(label: np.ndarray, ch: _Chains, family, reverse: bool,
+                  opts: LineDetectOptions) -> np.ndarray:
+    """Label the chains between two labelled ones along the runs by counting.
+
+    Along a run, two labelled centres i and j (indices ``l_i``, ``l_j``, reading order) with
+    exactly ``l_j - l_i - 1`` centres between them, all gaps alike (within ``gap_ratio`` of
+    each other), enclose lines ``l_i + 1 .. l_j - 1`` in order; each enclosed centre votes for
+    its line, and an unlabelled chain takes the index most of its votes give (``min_votes``,
+    ``min_agreement``). This needs no colour: where a region's colours are misread (saturated
+    highlights) the windows fail, but the count of lines between two decoded ones does not.
+    Gaps of at most ``max_fill`` lines are filled.
+    """
+    o = np.lexsort((ch.across, ch.run))
+    r, a, c = ch.run[o], ch.across[o], ch.chain[o]
+    lab = label[c]
+    sign = -1 if reverse else 1
+    li = np.nonzero(lab >= 0)[0]
+    if len(li) < 2:
+        return label
+    p1, p2 = li[:-1], li[1:]
+    d = sign * (lab[p2] - lab[p1])
+    ok = (r[p1] == r[p2]) & (d >= 2) & (d <= opts.max_fill) & (p2 - p1 == d)
+    p1, p2, d = p1[ok], p2[ok], d[ok]
+    if not len(p1):
+        return label
+    gap = np.r_[np.diff(a), np.inf]
+    # smallest and largest gap of each enclosed stretch [p1, p2)
+    k = np.arange(int(d.max()))[None, :]
+    idx = np.minimum(p1[:, None] + k, len(gap) - 1)
+    inside = k < d[:, None]
+    g = gap[idx]
+    gmin = np.where(inside, g, np.inf).min(1)
+    gmax = np.where(inside, g, 0.0).max(1)
+    alike = gmax <= opts.gap_ratio * gmin
+    p1, d = p1[alike], d[alike]
+    if not len(p1):
+        return label
+    rep = np.repeat(np.arange(len(p1)), d - 1)
+    step = np.arange(len(rep)) - np.repeat(np.cumsum(d - 1) - (d - 1), d - 1) + 1
+    pos = p1[rep] + step
+    vc = c[pos]
+    vi = lab[p1[rep]] + sign * step
+    free = label[vc] < 0
+    new = _majority(vc[free], vi[free], ch.nchains, family.count, opts.min_votes,
+                    opts.min_agreement)
+    out = label.copy()
+    take = (new >= 0) & (label < 0)
+    out[take] = new[take]
+    return out
+
+
 def _collinear(ch: _Chains, max_gap: int, offset: float) -> tuple[np.ndarray, np.ndarray]:
     """Chain pairs (a, b) where b continues a along its line across a gap of up to ``max_gap``
     runs (a black square, a shadow; :func:`~nurbscan.detect.ridges.gap_links`)."""
@@ -585,6 +638,11 @@ def _decode_family(ch: _Chains, chroma: np.ndarray, pattern, d: int,
     label = _propagate(label, colour_ok, ch, family, reverse, opts)
     label = _collinear_labels(label, colour_ok, ch, family, pieces)
     label = _ordered(_consistent(label, ch, reverse, opts.pitch_tol), ch, reverse, pairs=pairs)
+    if opts.max_fill >= 2:
+        label = _fill_between(label, ch, family, reverse, opts)
+        label = _collinear_labels(label, colour_ok, ch, family, pieces)
+        label = _ordered(_consistent(label, ch, reverse, opts.pitch_tol), ch, reverse,
+                         pairs=pairs)
     return label, None
 
 
