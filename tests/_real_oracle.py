@@ -263,3 +263,87 @@ def shift_ok(check: LineCheck, pattern, tol_share: float = 0.5) -> bool:
                 >= tol_share * pitch:
             return False
     return True
+
+
+def object_mask(root: Path, n: int) -> np.ndarray:
+    """The source's object mask of scene ``n`` (objectROI09 / 10), (H, W) bool."""
+    a = cv2.imread(str(root / "images" / f"objectROI{n:02d}.png"), cv2.IMREAD_GRAYSCALE)
+    if a is None:
+        raise FileNotFoundError(root / "images" / f"objectROI{n:02d}.png")
+    return a > 127
+
+
+def epipolar_distance(cam: np.ndarray, proj: np.ndarray, cal: dict,
+                      offset=REFERENCE_OFFSET) -> np.ndarray:
+    """Distance (projector px) of each projector point from the epipolar line of its camera
+    point under the reference calibration (undistorted points, F = K_p^-T [T]x R K_c^-1), the
+    projector points moved into the reference's projector frame by :data:`REFERENCE_OFFSET`."""
+    kc, kp = cal["camK"], cal["prjK"]
+    uc = cv2.undistortPoints(cam.reshape(-1, 1, 2), kc, cal["camKc"], P=kc).reshape(-1, 2)
+    pj = proj + np.asarray(offset)[None, :]
+    up = cv2.undistortPoints(pj.reshape(-1, 1, 2), kp, cal["prjKc"], P=kp).reshape(-1, 2)
+    t = cal["T"].ravel()
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    f = np.linalg.inv(kp).T @ tx @ cal["R"] @ np.linalg.inv(kc)
+    lines = (f @ np.c_[uc, np.ones(len(uc))].T).T
+    num = np.abs((lines * np.c_[up, np.ones(len(up))]).sum(1))
+    return num / np.hypot(lines[:, 0], lines[:, 1])
+
+
+@dataclass
+class SceneCheck:
+    lines: int        # decoded lines with centres on the object
+    crossings: int    # decoded intersections on the object
+    wrong: list       # (direction, index, line id, reason)
+    epipolar_p50: float
+    epipolar_p95: float
+    shifted_p5: float  # 5th percentile of the epipolar distance had a label been off by one
+
+
+def check_scene(result, pattern, root: Path, n: int, flat: bool) -> SceneCheck:
+    """Labels of a scene on its object mask.
+
+    Every decoded intersection on the object is checked against the epipolar geometry of the
+    reference calibration (:func:`epipolar_distance`): a line is wrong when the median distance
+    of its intersections exceeds half the smallest distance that a label off by one line
+    would give (``shifted_p5 / 2``). A flat scene (09) is also checked against a RANSAC
+    camera -> projector homography of its intersections, like the poses.
+    """
+    mask = object_mask(root, n)
+    h, w = mask.shape
+    cal = reference_calibration(root)
+    ix = np.clip(np.round(result.cam[:, 0]).astype(int), 0, w - 1)
+    iy = np.clip(np.round(result.cam[:, 1]).astype(int), 0, h - 1)
+    on = mask[iy, ix]
+    cam, proj, cl = result.cam[on], result.proj[on], result.cross_line[on]
+    pitch = np.array([float(np.median(np.diff(pattern.family(d).centres)))
+                      for d in ("vertical", "horizontal")])
+    dist = epipolar_distance(cam, proj, cal)
+    shifted = np.min([epipolar_distance(cam, proj + s * np.eye(2)[d] * pitch[d], cal)
+                      for d in (0, 1) for s in (-1, 1)], axis=0)
+    tol = 0.5 * float(np.percentile(shifted, 5)) if len(shifted) else 0.0
+    wrong = []
+    for li in np.unique(cl):
+        sel = (cl == li).any(1)
+        med = float(np.median(dist[sel]))
+        if med > tol:
+            wrong.append((int(result.direction[li]), int(result.band[li]), int(li),
+                          f"epipolar: {med:.1f} px > {tol:.1f}"))
+    if flat and len(cam) >= 8:
+        und = cv2.undistortPoints(cam.reshape(-1, 1, 2), cal["camK"], cal["camKc"],
+                                  P=cal["camK"]).reshape(-1, 2)
+        hmat, _ = cv2.findHomography(und, proj, cv2.RANSAC, 3.0)
+        err = cv2.perspectiveTransform(und.reshape(-1, 1, 2), hmat).reshape(-1, 2) - proj
+        for li in np.unique(cl):
+            for d in (0, 1):
+                sel = cl[:, d] == li
+                if sel.any() and abs(float(np.median(err[sel, d]))) >= 0.5 * pitch[d]:
+                    wrong.append((d, int(result.band[li]), int(li), "homography"))
+    nl = 0
+    for li in range(result.nlines):
+        p = np.round(result.polyline(li)).astype(int)
+        if mask[np.clip(p[:, 1], 0, h - 1), np.clip(p[:, 0], 0, w - 1)].sum() >= 5:
+            nl += 1
+    p50 = float(np.median(dist)) if len(dist) else np.nan
+    p95 = float(np.percentile(dist, 95)) if len(dist) else np.nan
+    return SceneCheck(nl, int(on.sum()), wrong, p50, p95, 2 * tol)

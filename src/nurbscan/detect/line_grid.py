@@ -94,7 +94,7 @@ class LineDetectOptions:
     propagation_rounds: int = 6
     pitch_tol: float = 0.3
     intersection_radius: float = 8.0
-    intersection_k: int = 10
+    intersection_k: int = 16
     max_fit_rms: float = 0.5
     background_offset: float = 0.25
     reading: str = "forward"
