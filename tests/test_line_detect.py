@@ -201,3 +201,55 @@ def test_real_scenes_decode_with_no_wrong_label(real_detections, scene):
     assert chk.wrong == []
     assert chk.shifted_p5 > 4 * chk.epipolar_p95  # the check can see an off-by-one label
     assert chk.lines >= 40 and chk.crossings >= 150
+
+
+def test_bad_arrays_raise_one_line_errors():
+    from nurbscan.errors import NurbscanError
+
+    pat = real_pattern()
+    img = np.zeros((120, 160, 3), np.uint8)
+    for bad, what in ((np.zeros((10, 10, 3), np.uint8), "image"),
+                      (np.zeros((120, 160, 2), np.uint8), "image"),
+                      (np.full((120, 160, 3), np.nan, np.float32), "image")):
+        with pytest.raises(NurbscanError, match=what) as exc:
+            detect_lines(bad, pat)
+        assert "\n" not in str(exc.value)
+    with pytest.raises(NurbscanError, match="white image"):
+        detect_lines(img, pat, np.zeros((100, 160, 3), np.uint8))
+
+
+@NEED_REAL
+def test_real_photograph_without_the_grid_gives_an_empty_result_with_warnings():
+    """The white-light photographs (no grid projected; scene 10's shows a plaid curtain)."""
+    pat = real_pattern()
+    for n in (1, 10):
+        img = read_rgb(REAL / "images" / f"lightGrid{n:02d}.png")
+        with pytest.warns(UserWarning, match="no grid found"):
+            r = detect_lines(img, pat)
+        assert r.nlines == 0 and len(r.cam) == 0
+        assert r.warnings[0].startswith("no grid found")
+
+
+@NEED_REAL
+def test_real_mirrored_photograph_refuses_the_backward_direction():
+    """Pose 01 flipped upside down: the horizontal lines' code reads backwards. Read forwards
+    (the default) they are refused with a warning, not mislabelled; the vertical lines are
+    still decoded, with their true labels (the pose's oracle on the flipped image)."""
+    from _real_oracle import check_labels, pose_oracle
+
+    pat = real_pattern()
+    img = read_rgb(REAL / "images" / "colorGrid01.png")[::-1].copy()
+    with pytest.warns(UserWarning, match="horizontal lines read backwards"):
+        r = detect_lines(img, pat)
+    assert (r.direction == 1).sum() == 0
+    assert (r.direction == 0).sum() >= 50
+    # the vertical labels against the unflipped pose's oracle
+    flipped = DetectionResult(**{**r.__dict__, "y": 479.0 - r.y,
+                                 "cam": np.zeros((0, 2)), "proj": np.zeros((0, 2))})
+    ref = detect_lines(read_rgb(REAL / "images" / "colorGrid01.png"), pat)
+    oracle = pose_oracle(REAL, 1)
+    good = check_labels(ref, pat, oracle)
+    # homography of the unflipped decode checks the flipped decode's vertical lines
+    chk = check_labels(DetectionResult(**{**flipped.__dict__, "cam": ref.cam,
+                                          "proj": ref.proj}), pat, oracle)
+    assert good.wrong == [] and chk.wrong == []

@@ -69,12 +69,13 @@ def _line_colours(result: DetectionResult, pattern) -> np.ndarray:
 
 
 def draw_line_overlay(image, result: DetectionResult, pattern, dim: float = 0.45,
-                      scale: int = 2) -> np.ndarray:
+                      scale: int = 2, label_gap: float = 120.0) -> np.ndarray:
     """Decoded lines of any pattern drawn over a dimmed, enlarged copy of the photograph.
 
     Each line (edges and centre-lines, ``edge = 2``) is drawn as its polyline in its band's
     colour, labelled ``V12`` / ``H7`` (``r`` / ``f`` appended for a rising / falling edge) at
-    its middle, with a dark outline so that the label reads on any background; grid
+    its middle (the longest pieces first, one label of a line per ``label_gap`` camera px),
+    with a dark outline so that the label reads on any background; grid
     intersections are white dots. ``scale`` enlarges the picture (nearest neighbour) so that
     labels of lines a few px apart stay legible.
 
@@ -93,14 +94,19 @@ def draw_line_overlay(image, result: DetectionResult, pattern, dim: float = 0.45
         col = tuple(int(c) for c in cols[i])
         fixed = np.round(pts * (1 << shift)).astype(np.int32)
         cv2.polylines(canvas, [fixed[:, None, :]], False, col, 1, cv2.LINE_AA, shift)
-    for i in range(result.nlines):
-        pts = (result.polyline(i) + 0.5) * scale - 0.5
+    placed: dict[str, list] = {}
+    for i in np.argsort(-(result.stop - result.start), kind="stable"):  # longest first
+        pts = (result.polyline(int(i)) + 0.5) * scale - 0.5
         if len(pts) < 10:
             continue
         col = tuple(int(c) for c in cols[i])
         mx, my = pts[len(pts) // 2]
         e = int(result.edge[i])
         text = f"{'VH'[result.direction[i]]}{result.band[i]}{'rf'[e] if e < 2 else ''}"
+        near = placed.setdefault(text, [])
+        if any(np.hypot(mx - qx, my - qy) < label_gap * scale for qx, qy in near):
+            continue  # one label of a line per label_gap px
+        near.append((mx, my))
         org = (int(mx) + 2, int(my) - 2) if result.direction[i] == 0 else (int(mx), int(my) - 3)
         cv2.putText(canvas, text, org, cv2.FONT_HERSHEY_SIMPLEX, font, (0, 0, 0), 3,
                     cv2.LINE_AA)
