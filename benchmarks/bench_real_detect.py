@@ -3,9 +3,11 @@
 The set ``../shared/real/procam-colour-grid`` (README there; ``NURBSCAN_REAL_DIR`` overrides):
 a real projector's thin-line colour grid on a calibration board in 8 poses and two scenes.
 Per shot it prints the lines visible on the board's white area (outside the checkerboard), the
-decoded ones, the wrong ones, the decoded share and the detection time; the labels are checked
-by the oracles of ``tests/_real_oracle.py`` (the board's RANSAC homography and the source's
-calibration for the poses; the source's epipolar geometry on the object masks for the scenes).
+decoded ones, the wrong ones, the decoded share, the coverage (share of the visible lines'
+rows / columns on the white area that hold a correctly decoded centre) and the detection
+time; the labels are checked by the oracles of ``tests/_real_oracle.py`` (the board's RANSAC
+homography and the source's calibration for the poses; the source's epipolar geometry on the
+object masks for the scenes).
 ``bench()`` returns the figures as a dict (``{"skipped": reason}`` when the set is absent).
 
 Run ``python benchmarks/bench_real_detect.py [--overlays DIR]`` (prints a table, then JSON;
@@ -46,7 +48,7 @@ def bench(overlays: Path | None = None, echo: bool = False) -> dict:
     out: dict = {"poses": {}, "scenes": {}}
     if echo:
         print(f"{'shot':>4} {'visible':>7} {'decoded':>7} {'wrong':>5} {'share':>6} "
-              f"{'lines':>5} {'cross':>5} {'seconds':>7}")
+              f"{'cover':>6} {'lines':>5} {'cross':>5} {'seconds':>7}")
     tot_v = tot_d = tot_w = 0
     for n in range(1, 11):
         img = read_rgb(root / "images" / f"colorGrid{n:02d}.png")
@@ -71,10 +73,12 @@ def bench(overlays: Path | None = None, echo: bool = False) -> dict:
             tot_v, tot_d, tot_w = tot_v + nv, tot_d + nd, tot_w + nw
             share = nd / nv if nv else float("nan")
             out["poses"][f"{n:02d}"] = {"visible": nv, "decoded": nd, "wrong": nw,
-                                        "share": round(share, 4), "lines": r.nlines,
+                                        "share": round(share, 4),
+                                        "coverage": round(chk.coverage, 4), "lines": r.nlines,
                                         "intersections": len(r.cam), "seconds": round(dt, 3)}
             if echo:
-                print(f"{n:>4} {nv:>7} {nd:>7} {nw:>5} {share:>6.3f} {r.nlines:>5} "
+                print(f"{n:>4} {nv:>7} {nd:>7} {nw:>5} {share:>6.3f} {chk.coverage:>6.3f} "
+                      f"{r.nlines:>5} "
                       f"{len(r.cam):>5} {dt:>7.2f}")
         else:
             chk = check_scene(r, pat, root, n, flat=n == 9)
@@ -84,7 +88,7 @@ def bench(overlays: Path | None = None, echo: bool = False) -> dict:
                 "epipolar_p95_px": round(chk.epipolar_p95, 3),
                 "off_by_one_p5_px": round(chk.shifted_p5, 3), "seconds": round(dt, 3)}
             if echo:
-                print(f"{n:>4} {'-':>7} {chk.lines:>7} {len(chk.wrong):>5} {'-':>6} "
+                print(f"{n:>4} {'-':>7} {chk.lines:>7} {len(chk.wrong):>5} {'-':>6} {'-':>6} "
                       f"{r.nlines:>5} {len(r.cam):>5} {dt:>7.2f}   (scene: lines on the "
                       f"object; epipolar p95 {chk.epipolar_p95:.2f} px, off-by-one would be "
                       f">= {chk.shifted_p5:.1f})")

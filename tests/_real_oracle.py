@@ -12,9 +12,12 @@ Nothing here is used by the detector. Two checks of each decoded label:
   line whose intersections are off it by half a pitch or more is wrong (an off-by-one label
   within a correct neighbourhood).
 
-The board's white area, where lines count as visible, is the board (bright region of the
-white-light image around the checkerboard) minus the checkerboard itself (its corner hull
-grown by one square) and a margin.
+The board's white area, where lines count as visible, is the board (the largest bright region
+of the white-light image, holes filled) minus the checkerboard itself (its corner hull grown by
+1.6 squares), 6 px inside the board's edge and the image border. A line is visible when its
+centre (within 2 projector px of its coordinate, by the board's homography) crosses the white
+area over at least 20 camera px, decoded when 5 of its decoded centres lie within 3 px of the
+white area.
 """
 
 from __future__ import annotations
@@ -118,10 +121,13 @@ def white_area(white_rgb: np.ndarray, corners: np.ndarray, margin: int = 6
     contours, _ = cv2.findContours(board, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     filled = np.zeros_like(board)
     cv2.drawContours(filled, contours, -1, 255, -1)
-    filled = cv2.erode(filled, np.ones((2 * margin + 1, 2 * margin + 1), np.uint8))
+    plane = cv2.erode(filled, np.ones((3, 3), np.uint8))
+    # the margin also from the image border (a line cut by the border is not visible)
+    filled = cv2.erode(filled, np.ones((2 * margin + 1, 2 * margin + 1), np.uint8),
+                       borderType=cv2.BORDER_CONSTANT, borderValue=0)
     checker = np.zeros_like(board)
     cv2.fillConvexPoly(checker, np.round(grow).astype(np.int32), 255)
-    return filled > 0, (filled > 0) & (checker == 0)
+    return plane > 0, (filled > 0) & (checker == 0)
 
 
 @dataclass
@@ -172,6 +178,8 @@ def pose_oracle(root: Path, n: int) -> PoseOracle | None:
 @dataclass
 class LineCheck:
     visible: list          # (direction, index) of the lines visible on the white area
+    coverage: float        # share of the visible lines' runs (rows / columns) on the white
+    #                        area that hold a decoded centre of the right line
     decoded: list          # of those, the ones decoded with the right label on the white area
     wrong: list            # (direction, index, line id, reason) of decoded lines found wrong
     offset: tuple          # median (reference prediction - label coordinate), per direction
@@ -179,21 +187,20 @@ class LineCheck:
     crossings: int         # decoded intersections
 
 
-def _visible(pattern, oracle: PoseOracle, pj_of, min_length: float) -> list:
-    """Lines whose strip (within a quarter pitch of their coordinate, by ``pj_of``) crosses the
-    white area over at least ``min_length`` camera px."""
+def _visible(pattern, oracle: PoseOracle, pj_of, min_length: float, half: float = 2.0
+             ) -> list:
+    """Lines whose centre (the white area's pixels within ``half`` projector px of their
+    coordinate, by ``pj_of``) crosses the white area over at least ``min_length`` camera px."""
     yy, xx = np.nonzero(oracle.area)
-    pick = (yy % 2 == 0) & (xx % 2 == 0)
-    grid = np.c_[xx[pick], yy[pick]].astype(np.float64)
+    grid = np.c_[xx, yy].astype(np.float64)
     pj = pj_of(grid)
-    out = []
+    out = {}
     for d, name in enumerate(("vertical", "horizontal")):
         cen = np.asarray(pattern.family(name).centres, np.float64)
-        pitch = float(np.median(np.diff(cen)))
         for i, c in enumerate(cen):
-            near = np.abs(pj[:, d] - c) < 0.25 * pitch
+            near = np.abs(pj[:, d] - c) < half
             if near.sum() >= 2 and np.ptp(grid[near][:, 1 - d]) >= min_length:
-                out.append((d, i))
+                out[(d, i)] = set(np.round(grid[near][:, 1 - d]).astype(int).tolist())
     return out
 
 
@@ -210,7 +217,7 @@ def check_labels(result, pattern, oracle: PoseOracle, min_length: float = 20.0,
     pitch = [float(np.median(np.diff(pattern.family(n).centres)))
              for n in ("vertical", "horizontal")]
     h, w = oracle.area.shape
-    empty = LineCheck([], [], [], (np.nan, np.nan), 0, len(result.cam))
+    empty = LineCheck([], 0.0, [], [], (np.nan, np.nan), 0, len(result.cam))
     if len(result.cam) < 8:
         return empty
     b = oracle.board_mm(result.cam)
@@ -223,8 +230,12 @@ def check_labels(result, pattern, oracle: PoseOracle, min_length: float = 20.0,
         return cv2.perspectiveTransform(bb.reshape(-1, 1, 2), hmat).reshape(-1, 2)
 
     visible = _visible(pattern, oracle, to_proj, min_length)
+    # a decoded line counts when 5 of its centres are within 3 px of the white area (the
+    # area's border is an estimate: a line along the board's edge can run just outside it)
+    near_area = cv2.dilate(oracle.area.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
     decoded, wrong = set(), []
     offs = [[], []]
+    covered: dict = {}
     for li in range(result.nlines):
         pts = result.polyline(li)
         d = int(result.direction[li])
@@ -239,12 +250,16 @@ def check_labels(result, pattern, oracle: PoseOracle, min_length: float = 20.0,
             wrong.append((d, int(result.band[li]), li, f"homography: {err:+.1f} px"))
             continue
         offs[d].append(float(np.median(oracle.projector(pts)[:, d] - result.coord[li])))
-        if oracle.area[iy, ix].sum() >= 5:
+        if near_area[iy, ix].sum() >= 5:
             decoded.add((d, int(result.band[li])))
+            runs = np.round(pts[:, 1 - d]).astype(int)[near_area[iy, ix]]
+            covered.setdefault((d, int(result.band[li])), set()).update(runs.tolist())
     offset = tuple(float(np.median(o)) if o else np.nan for o in offs)
     vis = sorted(visible)
-    return LineCheck(vis, sorted(set(vis) & decoded), wrong, offset, int(mask.sum()),
-                     len(result.cam))
+    total = sum(len(r) for r in visible.values())
+    hit = sum(len(r & covered.get(k, set())) for k, r in visible.items())
+    return LineCheck(vis, hit / total if total else 0.0, sorted(set(vis) & decoded), wrong,
+                     offset, int(mask.sum()), len(result.cam))
 
 
 #: The reference calibration's projector frame is offset from the pattern's by about this

@@ -92,6 +92,8 @@ def _truth_check(result, pattern, hmat):
     w, h = result.image_size
     visible = []
     for d, name in enumerate(("vertical", "horizontal")):
+        if getattr(pattern, name) is None:
+            continue
         for i, c in enumerate(pattern.family(name).centres):
             t = np.linspace(0, pattern.height if d == 0 else pattern.width, 400)
             pp = np.c_[np.full_like(t, c), t] if d == 0 else np.c_[t, np.full_like(t, c)]
@@ -253,3 +255,19 @@ def test_real_mirrored_photograph_refuses_the_backward_direction():
     chk = check_labels(DetectionResult(**{**flipped.__dict__, "cam": ref.cam,
                                           "proj": ref.proj}), pat, oracle)
     assert good.wrong == [] and chk.wrong == []
+
+
+def test_synthetic_vertical_lines_only():
+    """A pattern of one direction: its lines decoded with their true labels, no crossings."""
+    from _line_synth import default_homography, render_photo
+    from nurbscan.pattern import LinePattern
+
+    full = real_pattern()
+    pat = LinePattern(800, 600, full.colours, 3, full.vertical, None)
+    hmat = default_homography()
+    r = detect_lines(render_photo(pat, hmat, seed=3), pat)
+    med, visible, _ = _truth_check(r, pat, hmat)
+    assert (r.direction == 0).all() and len(r.cam) == 0
+    assert np.all(np.abs(med) < 29 / 4)
+    assert len({int(b) for b in r.band} & {i for _, i in visible}) >= 0.95 * len(visible)
+    assert (r.votes > 0).mean() > 0.5 and np.all((r.agreement >= 0) & (r.agreement <= 1))

@@ -146,6 +146,7 @@ class _Chains:
     across: np.ndarray
     nchains: int
     cls: np.ndarray | None = None
+    votes: tuple | None = None  # (C,) windows for the final label, (C,) their share
 
 
 def _family_chains(points: RidgePoints, direction: np.ndarray, order: np.ndarray,
@@ -618,6 +619,17 @@ def _empty(size, why: str) -> DetectionResult:
     return DetectionResult.empty(size, (why,))
 
 
+def _label_votes(label: np.ndarray, vc: np.ndarray, vi: np.ndarray, nchains: int
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Windows voting for each chain's final label (C,) and their share of the chain's
+    votes (C,) (0 for a chain without votes, labelled by its neighbours only)."""
+    tot = np.bincount(vc, minlength=nchains).astype(np.float64)
+    agree = np.bincount(vc[vi == label[vc]], minlength=nchains)
+    with np.errstate(all="ignore"):
+        share = np.where(tot > 0, agree / tot, 0.0)
+    return agree.astype(np.int64), share
+
+
 def _decode_family(ch: _Chains, chroma: np.ndarray, pattern, d: int,
                    opts: LineDetectOptions) -> tuple[np.ndarray, str | None]:
     """Labels (C,) of one direction's chains (module notes, steps 2 to 6), or a warning."""
@@ -668,6 +680,7 @@ def _decode_family(ch: _Chains, chroma: np.ndarray, pattern, d: int,
         label = _collinear_labels(label, colour_ok, ch, family, pieces)
         label = _ordered(_consistent(label, ch, reverse, opts.pitch_tol), ch, reverse,
                          pairs=pairs)
+    ch.votes = _label_votes(label, vc, vi, ch.nchains)
     return label, None
 
 
@@ -689,7 +702,9 @@ def detect_lines(image, pattern, white=None, options: LineDetectOptions = LineDe
     -------
     DetectionResult
         Centre-lines (``edge = 2``, ``coord`` the line's projector centre coordinate, ``band``
-        its index in the family, ``votes`` / ``agreement`` of its label) and the grid
+        its index in the family, ``votes`` the windows that read its label and ``agreement``
+        their share of its windows; 0 for a line labelled by its neighbours, a collinear
+        piece or counting only) and the grid
         intersections of the decoded lines; empty with ``warnings`` when no grid is found.
 
     Notes
@@ -759,8 +774,12 @@ def _result(size, fams, labels, pattern, opts: LineDetectOptions) -> DetectionRe
             ldir.append(d)
             lband.append(int(lab[c]))
             lcoord.append(float(centres[lab[c]]))
-            lvotes.append(len(sel))
-            lagree.append(1.0)
+            if ch.votes is not None:
+                lvotes.append(int(ch.votes[0][c]))
+                lagree.append(float(ch.votes[1][c]))
+            else:
+                lvotes.append(0)
+                lagree.append(0.0)
             nl += 1
     x, y = np.concatenate(xs), np.concatenate(ys)
     line = np.concatenate(lines)
