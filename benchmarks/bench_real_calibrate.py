@@ -111,15 +111,25 @@ def fit_cylinder(X: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarr
     return best[1], best[2], best[3], best[4]
 
 
+def family_offset(X: np.ndarray, axis: np.ndarray) -> float:
+    """Mean distance (mm) of the horizontal lines' points (axis 1) from the best plane of the
+    vertical lines' points (axis 0), along its normal oriented away from the camera: how far
+    the two families' light surfaces disagree on a plane."""
+    c, n, _ = fit_plane(X[axis == 0])
+    n = n if n @ c > 0 else -n
+    return float(np.mean((X[axis == 1] - c) @ n))
+
+
 def _white_points(det, mask):
-    """Centre-line points of a detection inside a mask (H, W): pixels (K, 2), value, axis."""
+    """Centre-line points of a detection inside a mask (H, W): pixels (K, 2), value, axis,
+    line id."""
     px = np.stack([det.x, det.y], axis=1)
     line = np.asarray(det.line)
     axis = np.asarray(det.direction)[line].astype(np.int64)
     value = np.asarray(det.coord, float)[line]
     ij = np.clip(np.round(px).astype(int), 0, [mask.shape[1] - 1, mask.shape[0] - 1])
     keep = mask[ij[:, 1], ij[:, 0]]
-    return px[keep], value[keep], axis[keep]
+    return px[keep], value[keep], axis[keep], line[keep]
 
 
 def _ray_plane(rig, px, c, n):
@@ -279,10 +289,10 @@ def leave_one_out(scans: dict, cache: dict, poses=tuple(range(1, 9))) -> dict:
             warnings.simplefilter("ignore")
             res = calibrate_scan(scans["calib"] / "calibration", exclude=(k,), pose_cache=cache,
                                  max_points_per_view=POINTS)
-        px, value, axis = _white_points(det, area)
+        px, value, axis, _ = _white_points(det, area)
         X = triangulate_edges(res.rig, px, value, axis)
         ok = np.all(np.isfinite(X), axis=1)
-        X = X[ok]
+        X, axis = X[ok], axis[ok]
         c, n, d = fit_plane(X)
         # gross points (wrong labels) are counted, not averaged
         med = 1.4826 * np.median(np.abs(d))
@@ -295,6 +305,11 @@ def leave_one_out(scans: dict, cache: dict, poses=tuple(range(1, 9))) -> dict:
         rows[f"pose {k:02d}"] = {
             "points": int(good.sum()), "gross points (> 6 sigma)": int((~good).sum()),
             "plane RMS (mm)": float(np.sqrt(np.mean(d**2))),
+            "plane RMS, vertical / horizontal lines alone (mm)": " / ".join(
+                f"{np.sqrt(np.mean(fit_plane(X[good & (axis == a)])[2]**2)):.3f}"
+                for a in (0, 1)),
+            "horizontal lines behind the vertical lines' plane (mm)": family_offset(
+                X[good], axis[good]),
             "square mean (mm)": float(sq.mean()),
             "square error mean (mm)": float(sq.mean() - 24.0),
             "square error RMS (mm)": float(np.sqrt(np.mean((sq - 24.0)**2))),
@@ -331,12 +346,11 @@ def scene_figures(scans: dict, rig) -> dict:
         t0 = time.perf_counter()
         det = detect_lines(grid, pattern, white=white)
         t_det = time.perf_counter() - t0
-        px, value, axis = _white_points(det, mask)
+        px, value, axis, line = _white_points(det, mask)
         X = triangulate_edges(rig, px, value, axis)
         ok = np.all(np.isfinite(X), axis=1)
-        px, X = px[ok], X[ok]
-        lines_in = np.unique(np.asarray(det.line)[np.isin(
-            np.arange(len(det.x)), np.flatnonzero(ok))]) if len(px) else []
+        px, X, axis = px[ok], X[ok], axis[ok]
+        lines_in = np.unique(line[ok])
         row = {"decoded lines in the image": int(det.nlines), "points in the mask": len(X),
                "lines in the mask": int(len(lines_in)), "detect time (s)": t_det}
         if len(X) < 20:
@@ -345,6 +359,11 @@ def scene_figures(scans: dict, rig) -> dict:
         if kind == "plane":
             c, n, d = fit_plane(X)
             row |= {"plane RMS (mm)": float(np.sqrt(np.mean(d**2))),
+                    "plane RMS, vertical / horizontal lines alone (mm)": " / ".join(
+                        f"{np.sqrt(np.mean(fit_plane(X[axis == a])[2]**2)):.3f}"
+                        for a in (0, 1)),
+                    "horizontal lines behind the vertical lines' plane (mm)": family_offset(
+                        X, axis),
                     "max |distance| (mm)": float(np.max(np.abs(d))),
                     "distance from the camera (mm)": float(np.linalg.norm(c))}
         else:

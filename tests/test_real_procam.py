@@ -201,3 +201,162 @@ def test_reconstruct_refuses_to_merge_views_without_a_calibrated_turntable(tmp_p
     assert len(err) == 1 and "2 views cannot be merged" in err[0] \
         and "turntable not calibrated" in err[0]
     assert not out.exists()
+
+
+@pytest.fixture(scope="module")
+def real_calibration(real_scans, tmp_path_factory):
+    """Poses 1-8 calibrated as ``nurbscan calibrate`` does (300 observations a pose, as the
+    benchmark), with the rig file and residuals written."""
+    from nurbscan.calibrate import calibrate_scan, write_outputs
+
+    with pytest.warns(UserWarning, match="turntable not calibrated"):
+        res = calibrate_scan(real_scans["calib"] / "calibration", max_points_per_view=300)
+    out = tmp_path_factory.mktemp("real_calib") / "calib.json"
+    write_outputs(res, out)
+    return res, out
+
+
+@needs_real
+def test_real_calibration_free_poses_only(real_calibration):
+    """8/8 poses; the camera-only fit under 0.16 px; the turntable said to be uncalibrated in
+    the result, its warnings and the rig file, which still loads as a rig."""
+    from nurbscan.calibrate import TURNTABLE_NOT_CALIBRATED, turntable_calibrated
+    from nurbscan.camera import load_rig
+
+    res, path = real_calibration
+    f = res.figures
+    assert f["views_used"] == f["views_given"] == 8
+    assert f["camera_init_rms_px"] <= 0.16
+    assert not res.turntable_calibrated and f["turntable"]["calibrated"] is False
+    assert TURNTABLE_NOT_CALIBRATED in res.warnings
+    doc = json.loads(path.read_text())
+    assert not turntable_calibrated(doc)
+    assert load_rig(path).camera.width == 640
+    assert f["edge_bias_projector_px"] is None  # centre-lines only: no band-edge bias
+    assert all(v["projector_observations"] >= 250 for v in f["per_view"])
+
+
+@needs_real
+def test_real_projector_agrees_with_opencv_on_the_same_points(real_calibration):
+    """The projector's residual is that of OpenCV's own calibrateCamera (8 distortion terms)
+    on the decoded grid intersections of the board's white part mapped onto the board by the
+    corner poses (measured 0.663-0.692 px per coordinate with 1 to 8 terms): the decoded
+    points, not the one-radial-term model, set it. Its focal lengths agree within 5 %."""
+    from nurbscan.calibrate import board_points, calibrate_camera, detect_chessboard, white_area
+    from nurbscan.calibrate._bundle import ProjObs
+    from nurbscan.calibrate.projector import board_frame_points
+    from nurbscan.detect import detect_lines
+    from nurbscan.io import read_image
+
+    res, _ = real_calibration
+    pat = _converter().line_pattern(REAL / "pattern.png")
+    board = board_points((6, 9), 24.0)
+    whites, grids = [], []
+    for k in range(1, 9):
+        whites.append(read_image(REAL / "images" / f"lightGrid{k:02d}.png", as_float=False))
+        grids.append(read_image(REAL / "images" / f"colorGrid{k:02d}.png", as_float=False))
+    corners = [detect_chessboard(w, (6, 9)) for w in whites]
+    d = 3072 * 0.0023 / 640
+    cam = calibrate_camera(corners, board, (640, 480), d, d)
+    obj, img = [], []
+    for i in range(8):
+        det = detect_lines(grids[i], pat, white=whites[i])
+        m = white_area(whites[i], corners[i], (6, 9), 24.0)
+        ij = np.clip(np.round(det.cam).astype(int), 0, [639, 479])
+        c, p = det.cam[m[ij[:, 1], ij[:, 0]]], det.proj[m[ij[:, 1], ij[:, 0]]]
+        z = np.zeros(len(c))
+        xy = board_frame_points(cam.kc, cam.rvecs, cam.tvecs,
+                                ProjObs(c, z, z.astype(int), np.full(len(c), i)), d, d)
+        H, inl = cv2.findHomography(xy, p, cv2.RANSAC, 3.0)
+        inl = inl.ravel() > 0
+        obj.append(np.column_stack([xy[inl], np.zeros(inl.sum())]).astype(np.float32))
+        img.append(p[inl].astype(np.float32))
+    rms, K, _, _, _ = cv2.calibrateCamera(obj, img, (800, 600), None, None,
+                                          flags=cv2.CALIB_RATIONAL_MODEL)
+    per_coord = rms / np.sqrt(2)
+    f = res.figures
+    assert abs(f["projector_rms_px"] - per_coord) < 0.1
+    prj = res.rig.projector
+    assert abs(prj.f * prj.sx / prj.dx / K[0, 0] - 1) < 0.05
+    assert abs(prj.f / prj.dy / K[1, 1] - 1) < 0.05
+
+
+@needs_real
+@pytest.mark.xfail(strict=True, reason="issue 31 target 0.2 projector px not reached: 0.69 px "
+                   "per coordinate; OpenCV on the same decoded points gives the same")
+def test_real_projector_rms_target(real_calibration):
+    assert real_calibration[0].figures["projector_rms_px"] <= 0.2
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("bench_real_calibrate",
+                                                  REPO / "benchmarks" / "bench_real_calibrate.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@needs_real
+def test_real_held_out_pose_flat_and_to_scale(real_scans):
+    """Pose 07 left out of the calibration: its decoded points on the white board lie within
+    2 mm RMS of a plane (measured 1.43 mm at 1.07 m), and the 24 mm squares measured from its
+    corner rays on that triangulated plane are 24 mm within 0.5 % (measured -0.017 %, RMS of
+    the single squares 0.52 %)."""
+    from nurbscan.calibrate import (
+        calibrate_scan,
+        detect_chessboard,
+        triangulate_edges,
+        white_area,
+    )
+    from nurbscan.detect import detect_lines
+    from nurbscan.io import read_image
+
+    b = _bench()
+    with pytest.warns(UserWarning, match="turntable not calibrated"):
+        res = calibrate_scan(real_scans["calib"] / "calibration", exclude=(7,),
+                             max_points_per_view=300)
+    assert "calibration/pose_07_white.png" not in res.views
+    white = read_image(REAL / "images" / "lightGrid07.png", as_float=False)
+    grid = read_image(REAL / "images" / "colorGrid07.png", as_float=False)
+    corners = detect_chessboard(white, (6, 9))
+    det = detect_lines(grid, _converter().line_pattern(REAL / "pattern.png"), white=white)
+    px, value, axis, _ = b._white_points(det, white_area(white, corners, (6, 9), 24.0))
+    X = triangulate_edges(res.rig, px, value, axis)
+    X = X[np.all(np.isfinite(X), axis=1)]
+    assert len(X) > 5000
+    c, n, d = b.fit_plane(X)
+    assert np.sqrt(np.mean(d**2)) < 2.0
+    sq = b.square_sizes(b._ray_plane(res.rig, corners, c, n), (6, 9))
+    assert len(sq) == 5 * 9 + 6 * 8
+    assert abs(sq.mean() / 24.0 - 1) < 0.005
+    assert np.sqrt(np.mean((sq / 24.0 - 1)**2)) < 0.02
+
+
+@needs_real
+def test_real_scenes_plane_and_cylinder(real_scans, real_calibration):
+    """Each scene from its one photograph with the calibration of poses 1-8, inside the
+    source's mask: shot 09 (a flat sheet) within 2 mm RMS of a plane (measured 1.42 mm);
+    shot 10 (a curved band) within 3 mm RMS of a cylinder (measured 2.30 mm, radius 211 mm)
+    and far from any plane (measured 17.9 mm). Regression bounds, not the true shapes."""
+    from nurbscan.calibrate import triangulate_edges
+    from nurbscan.detect import detect_lines
+    from nurbscan.io import read_image
+
+    b = _bench()
+    rig = real_calibration[0].rig
+    pat = _converter().line_pattern(REAL / "pattern.png")
+    out = {}
+    for k in (9, 10):
+        img = {n: read_image(REAL / "images" / f"{n}{k:02d}.png", as_float=False)
+               for n in ("colorGrid", "lightGrid", "objectROI")}
+        mask = img["objectROI"] if img["objectROI"].ndim == 2 else img["objectROI"][..., 0]
+        det = detect_lines(img["colorGrid"], pat, white=img["lightGrid"])
+        px, value, axis, _ = b._white_points(det, mask > 127)
+        X = triangulate_edges(rig, px, value, axis)
+        out[k] = X[np.all(np.isfinite(X), axis=1)]
+    assert len(out[9]) > 5000 and len(out[10]) > 3000
+    assert np.sqrt(np.mean(b.fit_plane(out[9])[2]**2)) < 2.0
+    _, _, r, d = b.fit_cylinder(out[10])
+    assert np.sqrt(np.mean(d**2)) < 3.0
+    assert 100 < r < 400
+    assert np.sqrt(np.mean(b.fit_plane(out[10])[2]**2)) > 10.0
