@@ -116,10 +116,12 @@ def _write_overlay(path: Path, image: np.ndarray, det, pattern, width: int = 153
     ``width`` px (area averaging)."""
     import cv2
 
-    from ..detect import draw_overlay
+    from ..detect import draw_line_overlay, draw_overlay
     from ..io import write_image
+    from ..pattern import LinePattern
 
-    rgb = draw_overlay(image, det, pattern)
+    draw = draw_line_overlay if isinstance(pattern, LinePattern) else draw_overlay
+    rgb = draw(image, det, pattern)
     if rgb.shape[1] > width:
         h = round(rgb.shape[0] * width / rgb.shape[1])
         rgb = cv2.resize(rgb, (width, h), interpolation=cv2.INTER_AREA)
@@ -187,9 +189,16 @@ def _view_job(job: dict):
     grid = read_image(job["grid"], as_float=False)
     white = read_image(job["white"], as_float=False) if job["white"] is not None else None
     t1 = time.perf_counter()
-    # a chroma-subsampled JPEG's colour channels have displaced edges (detect_grid)
-    det = detect_grid(grid, job["pattern"], white, **detect_options(job["rig"]),
-                      chroma_subsampled=chroma_subsampled(job["grid"]))
+    from ..pattern import LinePattern
+
+    if isinstance(job["pattern"], LinePattern):  # thin lines: centre-lines (edge 2)
+        from ..detect import detect_lines
+
+        det = detect_lines(grid, job["pattern"], white=white)
+    else:
+        # a chroma-subsampled JPEG's colour channels have displaced edges (detect_grid)
+        det = detect_grid(grid, job["pattern"], white, **detect_options(job["rig"]),
+                          chroma_subsampled=chroma_subsampled(job["grid"]))
     t2 = time.perf_counter()
     res = reconstruct_view(det, job["rig"], job["pattern"], **job["kwargs"])
     t3 = time.perf_counter()
