@@ -403,7 +403,8 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
                    projector_pitch: float | None = None, max_points_per_view: int = 1500,
                    progress: Callable[[str], None] | None = None,
                    workers: int = 1, require_all: bool = False,
-                   pose_cache: dict | None = None) -> CalibrationResult:
+                   pose_cache: dict | None = None,
+                   projector_weight: float = 1.0) -> CalibrationResult:
     """Calibrate camera, projector and turntable from a scan's calibration images.
 
     Parameters
@@ -542,7 +543,8 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
                                    (pattern.width, pattern.height))
     st = BundleState(kc=cam.kc, rvecs=cam.rvecs, tvecs=cam.tvecs, kp=kp0, rp=rp0, tp=tp0)
     cw = corner_weights(cam.per_view_rms)
-    st = run_bundle(st, cam.corners, proj, dc, dp, corner_weight=cw)
+    st = run_bundle(st, cam.corners, proj, dc, dp, corner_weight=cw,
+                    proj_weight=projector_weight)
     r = projector_residuals(st.kc, st.rvecs, st.tvecs, st.kp, st.rp, st.tp, proj, dc, dp,
                             st.shrink)
     sigma = 1.4826 * np.median(np.abs(r))
@@ -551,7 +553,8 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
     if n_out:
         proj = ProjObs(proj.pixels[good], proj.value[good], proj.axis[good], proj.view[good],
                        proj.sign[good])
-        st = run_bundle(st, cam.corners, proj, dc, dp, corner_weight=cw)
+        st = run_bundle(st, cam.corners, proj, dc, dp, corner_weight=cw,
+                    proj_weight=projector_weight)
     _say(progress, f"[{time.perf_counter() - t0:6.1f} s] bundle: camera RMS "
          f"{st.cost['camera_rms_px']:.4f} px, projector RMS {st.cost['projector_rms_px']:.4f} "
          f"px ({len(proj.view)} observations, {n_out} outliers left out)")
