@@ -22,7 +22,11 @@ wide) whose colours form a windowed code along each direction (a De Bruijn seque
    neighbour relations mostly fail are refused (label -1), the worst first, until all agree.
 6. Propagation (:func:`_propagate`): an unlabelled chain next to labelled chains in its rows,
    at the pitch of their labelled neighbours, takes the next index when its colour is that
-   line's colour and enough rows agree; the result is checked again (step 5).
+   line's colour and enough rows agree; collinear pieces of a line share its label
+   (:func:`_collinear_labels`); chains between two decoded lines are labelled by counting
+   (:func:`_fill_between`); the result is checked again (step 5 and the order of the lines
+   along the runs, :func:`_ordered`), and finally against the smooth index field of each
+   chain's neighbourhood (:func:`_field_check`).
 7. The decoded chains become centre-lines of a :class:`~nurbscan.detect.result.DetectionResult`
    (``edge = 2``, ``coord`` the line's centre coordinate in the projector), and their
    crossings (a vertical and a horizontal line fitted locally, intersected) its grid
@@ -86,6 +90,9 @@ class LineDetectOptions:
     ``piece_gap`` (longest gap, runs) and ``piece_offset`` (px, grown by 2 % of the gap)
     between collinear chains that must share a label.
 
+    Field check: ``field_radius`` (neighbourhood, in line gaps) and ``field_tol`` (pitches; 0
+    disables) of :func:`_field_check`.
+
     Intersections: ``intersection_radius`` (px), ``intersection_k`` (points per fit),
     ``max_fit_rms`` (px).
     """
@@ -111,6 +118,8 @@ class LineDetectOptions:
     max_fill: int = 6
     min_score: float = 0.3
     colour_search: bool = False
+    field_radius: float = 2.5
+    field_tol: float = 0.5
     piece_offset: float = 1.2
 
 
@@ -496,6 +505,85 @@ def _fill_between(label: np.ndarray, ch: _Chains, family, reverse: bool,
     return out
 
 
+def _field_residuals(label: np.ndarray, ch: _Chains, coords: np.ndarray, radius: float,
+                     samples: int = 5, min_labels: int = 2) -> np.ndarray:
+    """Median distance (projector px) of each labelled chain's coordinate from the plane
+    ``coord = a + b x + c y`` fitted (least squares) to the other labelled chains' centres
+    within ``radius`` camera px of ``samples`` of its centres; NaN where fewer than
+    ``min_labels`` other labels are near. (All samples' fits at once: the normal equations
+    summed per sample with ``bincount``, solved batched.)"""
+    res = np.full(ch.nchains, np.nan)
+    lab_pt = label[ch.chain]
+    sel = np.nonzero(lab_pt >= 0)[0][::3]  # every 3rd labelled centre
+    if len(sel) < 3:
+        return res
+    starts = np.r_[0, np.nonzero(ch.chain[1:] != ch.chain[:-1])[0] + 1]
+    stops = np.r_[starts[1:], len(ch.chain)]
+    lc = np.nonzero(label >= 0)[0]
+    frac = np.linspace(0.0, 1.0, samples)[None, :]
+    smp = np.unique(np.round(starts[lc, None] + frac * (stops[lc, None] - 1 - starts[lc, None]))
+                    .astype(np.int64).ravel())
+    x, y = ch.pts.x, ch.pts.y
+    tree = cKDTree(np.c_[x[sel], y[sel]])
+    lists = tree.query_ball_point(np.c_[x[smp], y[smp]], radius)
+    cnt = np.fromiter((len(v) for v in lists), np.int64, len(lists))
+    if not cnt.sum():
+        return res
+    si = np.repeat(np.arange(len(smp)), cnt)
+    nb = sel[np.concatenate([np.asarray(v, np.int64) for v in lists if len(v)])]
+    keep = ch.chain[nb] != ch.chain[smp[si]]
+    si, nb = si[keep], nb[keep]
+    m = len(smp)
+    # distinct labels per sample
+    key = np.unique(si * (len(coords) + 1) + lab_pt[nb])
+    nlab = np.bincount(key // (len(coords) + 1), minlength=m)
+    dx, dy = x[nb] - x[smp[si]], y[nb] - y[smp[si]]
+    v = coords[lab_pt[nb]]
+    terms = (np.ones_like(dx), dx, dy, dx * dx, dx * dy, dy * dy, v, v * dx, v * dy)
+    s_ = [np.bincount(si, t, minlength=m) for t in terms]
+    ata = np.stack([np.stack([s_[0], s_[1], s_[2]], -1), np.stack([s_[1], s_[3], s_[4]], -1),
+                    np.stack([s_[2], s_[4], s_[5]], -1)], -2)
+    atb = np.stack([s_[6], s_[7], s_[8]], -1)
+    ok = (nlab >= min_labels) & (np.linalg.det(ata) > 1e-6 * np.maximum(s_[0], 1) ** 3)
+    if not ok.any():
+        return res
+    coef = np.linalg.solve(ata[ok] + 1e-9 * np.eye(3)[None], atb[ok][:, :, None])[:, 0, 0]
+    sc = ch.chain[smp[ok]]
+    err = np.abs(coef - coords[label[sc]])
+    o = np.lexsort((err, sc))
+    sc, err = sc[o], err[o]
+    first = np.r_[0, np.nonzero(sc[1:] != sc[:-1])[0] + 1]
+    last = np.r_[first[1:], len(sc)]
+    lo, hi = (first + last - 1) // 2, (first + last) // 2
+    res[sc[first]] = 0.5 * (err[lo] + err[hi])
+    return res
+
+
+def _field_check(label: np.ndarray, ch: _Chains, family, radius: float, tol: float,
+                 rounds: int = 20) -> np.ndarray:
+    """Refuse labels off the smooth index field of their neighbourhood.
+
+    On a surface the projector coordinate is a smooth function of the camera position, close to
+    a plane over a few lines: the chain whose coordinate is farthest (more than ``tol``
+    pitches) from the plane fitted to the other labelled chains around it
+    (:func:`_field_residuals`) loses its label, until none is that far. This catches short
+    chains labelled from a misread window or an interrupted run (inside a checkerboard), which
+    the run checks see only along one row.
+    """
+    coords = np.asarray(family.centres, np.float64)
+    pitch = float(np.median(np.diff(coords))) if len(coords) > 1 else 1.0
+    label = label.copy()
+    for _ in range(rounds):
+        res = _field_residuals(label, ch, coords, radius)
+        bad = np.nan_to_num(res, nan=0.0) > tol * pitch
+        if not bad.any():
+            break
+        worst = np.nanmax(np.where(bad, res, np.nan))
+        # drop the worst, and every chain nearly as bad (a round per chain is slow)
+        label[bad & (res >= 0.75 * worst)] = -1
+    return label
+
+
 def _collinear(ch: _Chains, max_gap: int, offset: float) -> tuple[np.ndarray, np.ndarray]:
     """Chain pairs (a, b) where b continues a along its line across a gap of up to ``max_gap``
     runs (a black square, a shadow; :func:`~nurbscan.detect.ridges.gap_links`)."""
@@ -680,6 +768,11 @@ def _decode_family(ch: _Chains, chroma: np.ndarray, pattern, d: int,
         label = _collinear_labels(label, colour_ok, ch, family, pieces)
         label = _ordered(_consistent(label, ch, reverse, opts.pitch_tol), ch, reverse,
                          pairs=pairs)
+    if opts.field_tol > 0:
+        _, gap = _neighbours(ch)
+        g = gap[np.isfinite(gap)]
+        radius = opts.field_radius * (float(np.median(g)) if len(g) else 20.0)
+        label = _field_check(label, ch, family, radius, opts.field_tol)
     ch.votes = _label_votes(label, vc, vi, ch.nchains)
     return label, None
 
