@@ -271,3 +271,32 @@ def test_synthetic_vertical_lines_only():
     assert np.all(np.abs(med) < 29 / 4)
     assert len({int(b) for b in r.band} & {i for _, i in visible}) >= 0.95 * len(visible)
     assert (r.votes > 0).mean() > 0.5 and np.all((r.agreement >= 0) & (r.agreement <= 1))
+
+
+def test_centre_lines_round_trip_and_overlay(tmp_path):
+    """A detect_lines result (edge = 2 centre-lines) survives lines.json, and its overlay draws
+    each line in its band's colour where the line is."""
+    from _line_synth import default_homography, render_photo
+    from nurbscan.detect import draw_line_overlay, load_detection
+
+    pat = real_pattern()
+    img = render_photo(pat, default_homography(), seed=5)
+    r = detect_lines(img, pat)
+    assert r.nlines > 40 and np.all(r.edge == 2) and np.all(r.cross_edge == 2)
+    back = load_detection(r.save(tmp_path / "lines.json"))
+    assert back.nlines == r.nlines and np.array_equal(back.edge, r.edge)
+    assert np.allclose(back.x, r.x, atol=1e-4) and np.allclose(back.cam, r.cam, atol=1e-4)
+    ov = draw_line_overlay(img, r, pat, scale=2)
+    assert ov.shape == (2 * img.shape[0], 2 * img.shape[1], 3) and ov.dtype == np.uint8
+    i = int(np.argmax(r.stop - r.start))  # the longest line: its middle centre's pixel
+    mid = r.polyline(i)[(r.stop[i] - r.start[i]) // 2]
+    px = np.round((mid + 0.5) * 2 - 0.5).astype(int)
+    codes = pat.family(("vertical", "horizontal")[r.direction[i]]).codes
+    want = pat.rgb[codes[r.band[i]]].astype(int)
+    got = ov[px[1] - 1:px[1] + 2, px[0] - 1:px[0] + 2].reshape(-1, 3).astype(float)
+    base = draw_line_overlay(img, DetectionResult.empty(r.image_size), pat, scale=2)
+    base = base[px[1] - 1:px[1] + 2, px[0] - 1:px[0] + 2].reshape(-1, 3).astype(float)
+    k = int(np.argmax(np.abs(got - base).sum(1)))  # the pixel the line changed most
+    d, t = got[k] - base[k], want - base[k]
+    assert np.abs(d).sum() > 60  # drawn (anti-aliased, so blended with the photograph)
+    assert d @ t / (np.linalg.norm(d) * np.linalg.norm(t)) > 0.9  # toward the band's colour
