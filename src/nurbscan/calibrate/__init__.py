@@ -7,15 +7,18 @@ their picture; :func:`compare_rigs` measures an estimated rig against the truth.
 
 Parts: :mod:`.camera` (chessboard detection, Zhang initialisation, Tsai fit),
 :mod:`.projector` (projector as an inverse camera), :mod:`.turntable` (axis from the target
-on the table), :mod:`._bundle` (joint least squares), :mod:`._tsai` (vectorised model).
+on the table), :mod:`.board` (the white part of a printed board, found in the image),
+:mod:`._bundle` (joint least squares), :mod:`._tsai` (vectorised model).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from .board import white_area
 from .camera import board_points, calibrate_camera, detect_chessboard
 from .pipeline import (
+    TURNTABLE_NOT_CALIBRATED,
     CalibrationResult,
     Target,
     calibrate_scan,
@@ -23,6 +26,7 @@ from .pipeline import (
     held_out_error,
     residual_image,
     triangulate_edges,
+    turntable_calibrated,
 )
 from .projector import init_projector, plane_homography
 from .turntable import fit_turntable
@@ -36,7 +40,7 @@ def write_outputs(result: CalibrationResult, output: Path) -> list[Path]:
     from ..io import write_image, write_json
 
     output = Path(output)
-    result.rig.save(output)
+    write_json(output, result.rig_dict())
     js = output.with_name(output.stem + "_residuals.json")
     write_json(js, result.residuals_dict())
     png = output.with_name(output.stem + "_residuals.png")
@@ -47,6 +51,7 @@ def write_outputs(result: CalibrationResult, output: Path) -> list[Path]:
 
 __all__ = [
     "CalibrationResult",
+    "TURNTABLE_NOT_CALIBRATED",
     "board_points",
     "calibrate_camera",
     "calibrate_scan",
@@ -59,5 +64,7 @@ __all__ = [
     "plane_homography",
     "residual_image",
     "triangulate_edges",
+    "turntable_calibrated",
+    "white_area",
     "write_outputs",
 ]

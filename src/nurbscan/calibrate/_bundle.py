@@ -144,7 +144,10 @@ def run_bundle(
     """
     P = len(state.rvecs)
     use_p = proj is not None
-    n_int = 5 + (10 + (0 if fix_sx_proj else 1) + 2 if use_p else 0)
+    # the band-edge bias is fitted only when some observation is a signed band edge (the
+    # centre-lines of thin lines, sign 0, leave it undetermined: it stays 0)
+    fit_sh = use_p and proj.sign is not None and bool(np.any(proj.sign != 0))
+    n_int = 5 + (10 + (0 if fix_sx_proj else 1) + (2 if fit_sh else 0) if use_p else 0)
     kp0 = None if state.kp is None else np.asarray(state.kp, float)
 
     def unpack(x):
@@ -157,7 +160,8 @@ def run_bundle(
             else:
                 kp = x[i:i + 5]
                 i += 5
-            rp, tp, sh = x[i:i + 3], x[i + 3:i + 6], x[i + 6:i + 8]
+            rp, tp = x[i:i + 3], x[i + 3:i + 6]
+            sh = x[i + 6:i + 8] if fit_sh else np.zeros(2)
         else:
             kp = rp = tp = sh = None
         poses = x[n_int:].reshape(P, 6)
@@ -166,8 +170,9 @@ def run_bundle(
     x0 = [np.asarray(state.kc, float)]
     if use_p:
         x0.append(kp0[[0, 1, 2, 4]] if fix_sx_proj else kp0)
-        x0 += [np.asarray(state.rp, float), np.asarray(state.tp, float),
-               np.zeros(2) if state.shrink is None else np.asarray(state.shrink, float)]
+        x0 += [np.asarray(state.rp, float), np.asarray(state.tp, float)]
+        if fit_sh:
+            x0.append(np.zeros(2) if state.shrink is None else np.asarray(state.shrink, float))
     x0.append(np.hstack([state.rvecs, state.tvecs]).ravel())
     x0 = np.concatenate(x0)
 
@@ -195,7 +200,7 @@ def run_bundle(
     steps[:5] = ks
     if use_p:
         kps = [s_ for s_, k in zip(ks, "fccsk", strict=True) if not (fix_sx_proj and k == "s")]
-        steps[5:n_int] = kps + [1e-7] * 3 + [1e-5] * 3 + [1e-4] * 2
+        steps[5:n_int] = kps + [1e-7] * 3 + [1e-5] * 3 + ([1e-4] * 2 if fit_sh else [])
     steps[n_int:] = np.tile([1e-7] * 3 + [1e-5] * 3, P)
     vrows = np.concatenate([np.repeat(corners.view, 2)] + ([proj.view] if use_p else []))
 

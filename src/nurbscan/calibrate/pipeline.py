@@ -46,6 +46,7 @@ from ._bundle import (
     run_bundle,
 )
 from ._tsai import back_project_local, project_local, rotmats
+from .board import outside_field, white_area
 from .camera import board_points, calibrate_camera, detect_chessboard
 from .projector import board_frame_points, init_projector
 from .turntable import fit_turntable
@@ -59,23 +60,56 @@ DEFAULT_PROJECTOR_SENSOR_WIDTH_MM = 1920 * 0.00756
 
 MIN_VIEWS = 3
 
+#: What a calibration without turntable poses says, in its warnings and in the rig file.
+TURNTABLE_NOT_CALIBRATED = ("turntable not calibrated: the calibration set has no turntable "
+                            "poses (fewer than 2 with a table angle), only the camera and the "
+                            "projector are calibrated")
+
+
+def turntable_calibrated(rig_json: dict) -> bool:
+    """False when a rig file's turntable is marked ``"calibrated": false`` (a calibration of
+    free poses only, :meth:`CalibrationResult.rig_dict`); True otherwise."""
+    tt = rig_json.get("turntable") if isinstance(rig_json, dict) else None
+    return not (isinstance(tt, dict) and tt.get("calibrated") is False)
+
 
 @dataclass
 class Target:
-    """Chessboard description from scan.json (``"type": "nurbscan.chessboard"``)."""
+    """Chessboard description from scan.json (``calibration.target``).
+
+    Only ``inner_corners`` and ``square_mm`` are needed: a checkerboard as people print it,
+    glued on a larger white board. Then ``margin`` is None and the white part of the board
+    where the projected grid is read is found in each white-light image
+    (:func:`nurbscan.calibrate.board.white_area`). nurbscan's own simulated target
+    (``"type": "nurbscan.chessboard"``) gives ``margin_mm``, the width of its white margin
+    around the field of squares, and its white squares are read as well.
+    """
 
     cols: int
     rows: int
     square: float
-    margin: float = 20.0
+    margin: float | None = 20.0
+    first_square_dark: bool = True
+
+    @property
+    def printed(self) -> bool:
+        """True when the board's white part is to be found in the images (no margin given)."""
+        return self.margin is None
 
     @classmethod
     def from_dict(cls, d: dict, source: str) -> Target:
         try:
-            if "chessboard" not in str(d.get("type", "")):
+            kind = str(d.get("type", "checkerboard"))
+            if "chessboard" not in kind and "checkerboard" not in kind:
                 raise ValueError(f"type {d.get('type')!r} is not a chessboard")
             cols, rows = (int(v) for v in d["inner_corners"])
-            return cls(cols, rows, float(d["square_mm"]), float(d.get("margin_mm", 20.0)))
+            square = float(d["square_mm"])
+            if cols < 2 or rows < 2 or not square > 0:
+                raise ValueError(f"inner_corners {[cols, rows]}, square_mm {square}")
+            # nurbscan's own target without a margin read as before (20 mm)
+            margin = d.get("margin_mm", 20.0 if kind == "nurbscan.chessboard" else None)
+            return cls(cols, rows, square, None if margin is None else float(margin),
+                       bool(d.get("first_square_dark", True)))
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise NurbscanError(f"{source}: bad calibration target description ({exc})") from None
 
@@ -103,6 +137,16 @@ class CalibrationResult:
     proj_residuals: list[np.ndarray]  # per view (K,) projector px
     proj_pixels: list[np.ndarray]  # per view (K, 2) camera px
     warnings: list[str] = field(default_factory=list)
+    turntable_calibrated: bool = True  # False: only free poses; rig.turntable a placeholder
+
+    def rig_dict(self) -> dict:
+        """The rig's JSON (:meth:`nurbscan.camera.Rig.to_dict`); an uncalibrated turntable is
+        marked ``"calibrated": false`` with a note (:func:`turntable_calibrated`)."""
+        d = self.rig.to_dict()
+        if not self.turntable_calibrated:
+            d["turntable"] = {**d["turntable"], "calibrated": False,
+                              "note": TURNTABLE_NOT_CALIBRATED}
+        return d
 
     def residuals_dict(self) -> dict:
         """JSON-ready residual figures (``"type": "nurbscan.calibration_residuals"``)."""
@@ -158,14 +202,24 @@ def _clean_board_points(xy: np.ndarray, target: Target, keep_off_edges_mm: float
     return white & away & inside & ~(~in_sq & near_field) & np.all(np.isfinite(xy), axis=1)
 
 
+def _edge_sign(det) -> np.ndarray:
+    """(L,) per line: -1 rising edge, +1 falling edge, 0 centre-line (``edge`` 2)."""
+    e = np.asarray(det.edge)
+    return np.where(e == 2, 0.0, 2.0 * e - 1.0)
+
+
 def edge_observations(det, kc, rvec, tvec, target: Target, view: int, dc,
                       max_points: int, keep_off_edges_mm: float = 2.0,
-                      rng: np.random.Generator | None = None) -> ProjObs:
+                      rng: np.random.Generator | None = None,
+                      white_area: np.ndarray | None = None, field_pad: float = 0.25) -> ProjObs:
     """Single-coordinate projector observations from a detection result on the target.
 
-    Keeps edge points whose board point (camera ray meets the view's board plane) lies on a
-    white square or the white margin, at least ``keep_off_edges_mm`` from any printed square
-    edge and from the board's outline; then at most ``max_points`` of them (evenly at random).
+    Keeps edge points (or centre-line points) whose board point (camera ray meets the view's
+    board plane) lies on a white square or the white margin, at least ``keep_off_edges_mm``
+    from any printed square edge and from the board's outline; with ``white_area`` (a printed
+    target: the mask of the board's white part found in the white-light image, (H, W) bool)
+    the points on that mask outside the checkerboard field widened by ``field_pad`` squares.
+    Then at most ``max_points`` of them (evenly at random).
     """
     x = np.asarray(det.x, float)
     if len(x) == 0:
@@ -176,15 +230,65 @@ def edge_observations(det, kc, rvec, tvec, target: Target, view: int, dc,
     axis = np.asarray(det.direction)[line].astype(np.int64)
     value = np.asarray(det.coord, float)[line]
     v = np.full(len(px), view, np.int64)
-    sign = 2.0 * np.asarray(det.edge)[line] - 1.0  # rising -1, falling +1
+    sign = _edge_sign(det)[line]
     o = ProjObs(px, value, axis, v, sign)
     xy = board_frame_points(kc, rvec[None], tvec[None], ProjObs(px, value, axis, v * 0), *dc)
-    keep = _clean_board_points(xy, target, keep_off_edges_mm)
+    if white_area is None:
+        keep = _clean_board_points(xy, target, keep_off_edges_mm)
+    else:
+        h, w = white_area.shape
+        ij = np.round(px).astype(np.int64)
+        inimg = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
+        ij = np.clip(ij, 0, [w - 1, h - 1])
+        keep = inimg & white_area[ij[:, 1], ij[:, 0]] & outside_field(
+            xy, (target.cols, target.rows), target.square, field_pad)
     idx = np.flatnonzero(keep)
     if len(idx) > max_points:
         rng = rng or np.random.default_rng(0)
         idx = np.sort(rng.choice(idx, max_points, replace=False))
     return ProjObs(o.pixels[idx], o.value[idx], o.axis[idx], o.view[idx], o.sign[idx])
+
+
+def consistent_labels(obs: ProjObs, det, kc, rvecs, tvecs, dc, tol_px: float = 4.0,
+                      ransac_px: float = 3.0) -> np.ndarray:
+    """(K,) bool: observations whose decoded label agrees with the view's board homography.
+
+    A line decoded with a wrong label (a block of lines read one window off) puts its points
+    a whole line spacing or more off in the projector. Per view, the board -> projector
+    homography of the decoded grid intersections (``det.cam`` mapped onto the board plane by
+    the view's pose, ``det.proj``) is found by RANSAC (:func:`cv2.findHomography`, threshold
+    ``ransac_px`` projector px; Fischler and Bolles 1981), and an observation is kept when its
+    projector coordinate is within ``tol_px`` of the homography's prediction at its board
+    point (lens distortion over a board moves the prediction by well under the lines'
+    spacing). Views with fewer than 8 intersections keep all their observations.
+
+    Parameters
+    ----------
+    obs : ProjObs
+        Observations of ONE view (its ``view`` index into ``rvecs``, ``tvecs``).
+    det : nurbscan.detect.DetectionResult
+        That view's detection (its ``cam`` and ``proj`` intersections).
+    kc, rvecs, tvecs, dc
+        Camera intrinsics, board poses (P, 3) and camera pixel pitch.
+    """
+    import cv2
+
+    cam, prj = np.asarray(det.cam, float), np.asarray(det.proj, float)
+    if len(obs.view) == 0 or len(cam) < 8:
+        return np.ones(len(obs.view), bool)
+    v = int(obs.view[0])
+    z = np.zeros(len(cam))
+    xy = board_frame_points(kc, rvecs, tvecs, ProjObs(cam, z, z.astype(np.int64),
+                                                      np.full(len(cam), v)), *dc)
+    ok = np.all(np.isfinite(xy), axis=1)
+    H, _ = cv2.findHomography(xy[ok], prj[ok], cv2.RANSAC, ransac_px)
+    if H is None:
+        return np.ones(len(obs.view), bool)
+    xo = board_frame_points(kc, rvecs, tvecs, obs, *dc)
+    q = np.column_stack([xo, np.ones(len(xo))]) @ H.T
+    q = q[:, :2] / q[:, 2:]
+    r = np.take_along_axis(q, obs.axis[:, None], axis=1)[:, 0] - obs.value
+    return np.abs(r) < tol_px
 
 
 def corner_weights(per_view_rms: np.ndarray) -> np.ndarray:
@@ -254,31 +358,54 @@ DETECT_OPTIONS = DetectOptions().replace(
     sigma_per_band=8.0, plane_radius=0.0, partner_drops="all", read_along="pixels")
 
 
-def _read_pose(job) -> tuple[tuple[int, int], np.ndarray | None, Any]:
-    """One pose's image size ``(W, H)``, chessboard corners (None: not found) and decoded grid
-    (None when the board is not found)."""
+def _is_line_pattern(pattern) -> bool:
+    """True for a :class:`nurbscan.pattern.LinePattern` (any grid of straight lines)."""
+    try:
+        from ..pattern import LinePattern
+    except ImportError:  # pragma: no cover - before the LinePattern class exists
+        return False
+    return isinstance(pattern, LinePattern)
+
+
+def _read_pose(job) -> tuple[tuple[int, int], np.ndarray | None, Any, np.ndarray | None]:
+    """One pose's image size ``(W, H)``, chessboard corners (None: not found), decoded grid
+    (None when the board is not found) and, for a printed target, the mask of the board's
+    white part (:func:`nurbscan.calibrate.board.white_area`; None otherwise)."""
     from ..detect import detect_grid
 
-    wpath, gpath, pattern, inner = job
+    wpath, gpath, pattern, target, require_all = job
+    inner = (target.cols, target.rows)
     # the files' own integer type: detect linearises it by table look-up (several times
     # faster than from float32)
     white = read_image(wpath, as_float=False)
-    c = detect_chessboard(white, inner)
+    c = detect_chessboard(white, inner, first_square_dark=target.first_square_dark)
+    if c is None and require_all:
+        raise NurbscanError(f"{wpath}: calibration target not found ({target.cols} x "
+                            f"{target.rows} inner corners)")
     if c is None:
-        return (white.shape[1], white.shape[0]), None, None
+        return (white.shape[1], white.shape[0]), None, None, None
+    area = white_area(white, c, inner, target.square) if target.printed else None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        # a chroma-subsampled JPEG's colour channels have displaced edges (detect_grid)
-        det = detect_grid(read_image(gpath, as_float=False), pattern, white,
-                          DETECT_OPTIONS.replace(chroma_subsampled=chroma_subsampled(gpath)))
-    return (white.shape[1], white.shape[0]), c, det
+        grid = read_image(gpath, as_float=False)
+        if _is_line_pattern(pattern):
+            from ..detect import detect_lines
+
+            det = detect_lines(grid, pattern, white=white)
+        else:
+            # a chroma-subsampled JPEG's colour channels have displaced edges (detect_grid)
+            det = detect_grid(grid, pattern, white,
+                              DETECT_OPTIONS.replace(chroma_subsampled=chroma_subsampled(gpath)))
+    return (white.shape[1], white.shape[0]), c, det, area
 
 
 def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
                    exclude: tuple[int, ...] = (), camera_pitch: float | None = None,
                    projector_pitch: float | None = None, max_points_per_view: int = 1500,
                    progress: Callable[[str], None] | None = None,
-                   workers: int = 1) -> CalibrationResult:
+                   workers: int = 1, require_all: bool = False,
+                   pose_cache: dict | None = None,
+                   projector_weight: float = 1.0) -> CalibrationResult:
     """Calibrate camera, projector and turntable from a scan's calibration images.
 
     Parameters
@@ -300,6 +427,13 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
     workers : int
         Processes reading the poses side by side (chessboard and grid detection; 0: one per
         CPU); the result does not depend on it.
+    require_all : bool
+        Refuse (:class:`NurbscanError` naming the file) a pose whose white-light image shows
+        no target, instead of leaving it out with a warning.
+    pose_cache : dict, optional
+        The caller's store of what was read from each pose's images (corners, decoded grid,
+        white area), keyed by the image paths: filled on the first call and reused by later
+        calls with the same dict (e.g. leave-one-pose-out calibrations of one set).
 
     Returns
     -------
@@ -327,20 +461,25 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
         raise NurbscanError(f"{doc['_path']}: {len(poses)} calibration poses; at least "
                             f"{MIN_VIEWS} are needed")
     board = target.corners()
-    inner = (target.cols, target.rows)
     warn_list: list[str] = []
-    names, kinds, angles, corners, dets = [], [], [], [], []
+    names, kinds, angles, corners, dets, areas = [], [], [], [], [], []
     size = None
-    jobs = [(root / p["white"], root / p["grid"], pattern, inner) for p in poses]
+    jobs = [(root / p["white"], root / p["grid"], pattern, target, require_all) for p in poses]
 
     def seen(i: int, res) -> None:
-        _say(progress, f"[{time.perf_counter() - t0:6.1f} s] {jobs[i][1].name}: "
+        _say(progress, f"[{time.perf_counter() - t0:6.1f} s] {todo[i][1].name}: "
              + ("target not found" if res[1] is None else f"{res[2].nlines} lines"))
 
-    for p, (shape, c, det) in zip(poses, process_map(_read_pose, jobs, workers, done=seen),
-                                  strict=True):
+    missing = []
+    cache = {} if pose_cache is None else pose_cache
+    todo = [j for j in jobs if (str(j[0]), str(j[1])) not in cache]
+    for j, r in zip(todo, process_map(_read_pose, todo, workers, done=seen), strict=True):
+        cache[(str(j[0]), str(j[1]))] = r
+    for p, j in zip(poses, jobs, strict=True):
+        shape, c, det, area = cache[(str(j[0]), str(j[1]))]
         size = size or shape
         if c is None:
+            missing.append(str(root / p["white"]))
             msg = f"{root / p['white']}: calibration target not found; pose left out"
             warnings.warn(msg, UserWarning, stacklevel=2)
             warn_list.append(msg)
@@ -354,9 +493,11 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
         angles.append(p.get("table_angle"))
         corners.append(c)
         dets.append((root / p["grid"], det))
+        areas.append(area)
     if len(corners) < MIN_VIEWS:
+        nf = f" (not found in {', '.join(missing)})" if missing else ""
         raise NurbscanError(f"{calib_dir}: the target was found in {len(corners)} image(s); "
-                            f"at least {MIN_VIEWS} are needed")
+                            f"at least {MIN_VIEWS} are needed{nf}")
     dc = (camera_pitch, camera_pitch) if camera_pitch else _pitch(
         doc, "camera", size[0], DEFAULT_CAMERA_SENSOR_WIDTH_MM)
     dp = (projector_pitch, projector_pitch) if projector_pitch else _pitch(
@@ -373,16 +514,23 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
             warnings.warn(msg, UserWarning, stacklevel=2)
             warn_list.append(msg)
         keep = [i for i in range(len(corners)) if i not in set(bad.tolist())]
-        names, kinds, angles, corners, dets = ([lst[i] for i in keep] for lst in
-                                               (names, kinds, angles, corners, dets))
+        names, kinds, angles, corners, dets, areas = (
+            [lst[i] for i in keep] for lst in (names, kinds, angles, corners, dets, areas))
         cam = calibrate_camera(corners, board, size, *dc, names=names)
     _say(progress, f"[{time.perf_counter() - t0:6.1f} s] camera: RMS {cam.rms:.4f} px")
 
     obs = []
     rng = np.random.default_rng(0)
+    lines, n_label = _is_line_pattern(pattern), 0
     for i, (gpath, det) in enumerate(dets):
         o = edge_observations(det, cam.kc, cam.rvecs[i], cam.tvecs[i], target, i, dc,
-                              max_points_per_view, rng=rng)
+                              max_points_per_view, rng=rng, white_area=areas[i])
+        if lines:
+            # thin-line grids: labels checked against the view's board homography
+            good = consistent_labels(o, det, cam.kc, cam.rvecs, cam.tvecs, dc)
+            n_label += int(np.sum(~good))
+            o = ProjObs(o.pixels[good], o.value[good], o.axis[good], o.view[good],
+                        o.sign[good])
         if len(o.view) < 50:
             msg = f"{gpath}: projected grid not decoded on the target; pose not used for the " \
                   "projector"
@@ -396,7 +544,8 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
                                    (pattern.width, pattern.height))
     st = BundleState(kc=cam.kc, rvecs=cam.rvecs, tvecs=cam.tvecs, kp=kp0, rp=rp0, tp=tp0)
     cw = corner_weights(cam.per_view_rms)
-    st = run_bundle(st, cam.corners, proj, dc, dp, corner_weight=cw)
+    st = run_bundle(st, cam.corners, proj, dc, dp, corner_weight=cw,
+                    proj_weight=projector_weight)
     r = projector_residuals(st.kc, st.rvecs, st.tvecs, st.kp, st.rp, st.tp, proj, dc, dp,
                             st.shrink)
     sigma = 1.4826 * np.median(np.abs(r))
@@ -405,7 +554,8 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
     if n_out:
         proj = ProjObs(proj.pixels[good], proj.value[good], proj.axis[good], proj.view[good],
                        proj.sign[good])
-        st = run_bundle(st, cam.corners, proj, dc, dp, corner_weight=cw)
+        st = run_bundle(st, cam.corners, proj, dc, dp, corner_weight=cw,
+                    proj_weight=projector_weight)
     _say(progress, f"[{time.perf_counter() - t0:6.1f} s] bundle: camera RMS "
          f"{st.cost['camera_rms_px']:.4f} px, projector RMS {st.cost['projector_rms_px']:.4f} "
          f"px ({len(proj.view)} observations, {n_out} outliers left out)")
@@ -424,18 +574,22 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
             used.append(c)
         tt = fit_turntable(st.rvecs[tt_idx], st.tvecs[tt_idx], th, board, used, st.kc, *dc)
         # table top: the board's lower edge rests on the table
-        x0, x1 = -target.square - target.margin, target.cols * target.square + target.margin
-        y1 = target.rows * target.square + target.margin
+        # a printed target's white border is not known: the field's own lower edge
+        margin = target.margin or 0.0
+        x0, x1 = -target.square - margin, target.cols * target.square + margin
+        y1 = target.rows * target.square + margin
         bottom = rotmats(tt.rvec0) @ np.array([(x0 + x1) / 2, y1, 0.0]) + tt.tvec0
         point = tt.point + tt.direction * float(tt.direction @ (bottom - tt.point))
         turntable = Turntable(point=point, direction=tt.direction)
-        tt_fig = {"views": len(tt_idx), "rms_px": tt.rms_px,
+        tt_fig = {"calibrated": True, "views": len(tt_idx), "rms_px": tt.rms_px,
                   "table_angle_rms_deg": tt.angle_rms_deg}
     else:
-        msg = "no turntable poses (fewer than 2 with a table angle): turntable not calibrated"
+        msg = TURNTABLE_NOT_CALIBRATED
         warnings.warn(msg, UserWarning, stacklevel=2)
         warn_list.append(msg)
+        # a placeholder (a Rig holds a turntable), marked uncalibrated in the rig file
         turntable = Turntable(point=np.array([0.0, 0.0, 600.0]), direction=np.array([0, -1.0, 0]))
+        tt_fig = {"calibrated": False, "note": msg}
 
     camera = Camera(width=size[0], height=size[1], f=float(st.kc[0]), cx=float(st.kc[1]),
                     cy=float(st.kc[2]), dx=dc[0], dy=dc[1], sx=float(st.kc[3]),
@@ -445,6 +599,7 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
                           sx=float(st.kp[3]), k1=float(st.kp[4]), R=rotmats(st.rp),
                           T=np.asarray(st.tp, float), name="projector")
     rig = Rig(camera=camera, projector=projector, turntable=turntable)
+    turntable_ok = bool(tt_fig.get("calibrated", False))
 
     rc = camera_residuals(st.kc, st.rvecs, st.tvecs, cam.corners, *dc)
     rpj = projector_residuals(st.kc, st.rvecs, st.tvecs, st.kp, st.rp, st.tp, proj, dc, dp,
@@ -467,8 +622,11 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
         "projector_max_px": float(np.max(np.abs(rpj))),
         "projector_observations": int(len(rpj)),
         "projector_outliers": n_out,
+        "projector_label_rejects": n_label,
+        # centre-lines of thin lines (sign 0) have no band-edge bias
         "edge_bias_projector_px": {"x": float(st.shrink[0]), "y": float(st.shrink[1]),
-                                   "note": "falling band edges read +bias, rising -bias"},
+                                   "note": "falling band edges read +bias, rising -bias"}
+        if np.any(proj.sign != 0) else None,
         "camera_init_rms_px": float(cam.rms),
         "views_used": P, "views_given": len(poses),
         "pixel_pitch_mm": {"camera": list(dc), "projector": list(dp)},
@@ -481,7 +639,8 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
         tp=st.tp, rvecs=st.rvecs, tvecs=st.tvecs, figures=figures, corner_residuals=cres,
         corner_pixels=[cam.corners.pixels[cam.corners.view == i] for i in range(P)],
         proj_residuals=pres,
-        proj_pixels=[proj.pixels[proj.view == i] for i in range(P)], warnings=warn_list)
+        proj_pixels=[proj.pixels[proj.view == i] for i in range(P)], warnings=warn_list,
+        turntable_calibrated=turntable_ok)
 
 
 # ---------------------------------------------------------------------------------- figures
@@ -650,7 +809,7 @@ def held_out_error(rig_est, rig_true, det, board_R, board_T, max_points: int = 2
     line = np.asarray(det.line)
     axis = np.asarray(det.direction)[line].astype(np.int64)
     value = np.asarray(det.coord, float)[line]
-    sign = 2.0 * np.asarray(det.edge)[line] - 1.0  # rising -1, falling +1
+    sign = _edge_sign(det)[line]  # rising -1, falling +1, centre-line 0
     if edge_bias is not None:
         value = value + sign * np.asarray(edge_bias, float)[axis]
     kt, dt = _cam_params(rig_true.camera)

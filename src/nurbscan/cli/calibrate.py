@@ -43,6 +43,12 @@ def register(sub) -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=2,
                    help="processes reading the poses side by side, at most one per CPU "
                         "(default 2; 0 = one per CPU); the result does not depend on it")
+    p.add_argument("--projector-weight", type=float, default=1.0, metavar="W",
+                   help="weight of the projector residuals against the camera's corner "
+                        "residuals in the joint bundle (default 1)")
+    p.add_argument("--require-all", action="store_true",
+                   help="refuse a pose whose white-light image shows no target (default: "
+                        "leave it out with a warning)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
     return p
@@ -50,18 +56,23 @@ def register(sub) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run the calibration and write rig, residual figures and residual picture."""
-    from ..calibrate import calibrate_scan, write_outputs
+    from ..calibrate import TURNTABLE_NOT_CALIBRATED, calibrate_scan, write_outputs
 
     if args.workers < 0:
         raise NurbscanError(f"--workers {args.workers}: must be >= 0")
+    if not args.projector_weight > 0:
+        raise NurbscanError(f"--projector-weight {args.projector_weight}: must be positive")
     progress = None if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     res = calibrate_scan(args.calibration_dir, args.pattern, exclude=tuple(args.exclude),
                          camera_pitch=args.camera_pitch, projector_pitch=args.projector_pitch,
                          max_points_per_view=args.max_points, progress=progress,
-                         workers=args.workers)
+                         workers=args.workers, require_all=args.require_all,
+                         projector_weight=args.projector_weight)
     paths = write_outputs(res, Path(args.output))
     f = res.figures
     print(f"nurbscan calibrate: wrote {', '.join(str(p) for p in paths)} (camera RMS "
           f"{f['camera_rms_px']:.3f} px, projector RMS {f['projector_rms_px']:.3f} px, "
           f"{f['views_used']} of {f['views_given']} poses)")
+    if not res.turntable_calibrated:
+        print(f"nurbscan calibrate: {TURNTABLE_NOT_CALIBRATED}")
     return 0

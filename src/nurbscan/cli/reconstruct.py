@@ -18,9 +18,10 @@ def register(sub) -> None:
             "lines with the calibrated rig, build the curve network, skins and Gordon "
             "surfaces, merge the views in the turntable frame (the table left out, the "
             "views' poses registered against each other), fuse them into one coloured "
-            "triangle mesh and write the model folder (model.json, points.npz, model.png, "
-            "fused.ply, overlays/view_KK_overlay.png with the detected lines of each view; "
-            "docs/model-format.md). Never reads truth/."))
+            "triangle mesh (a rig whose turntable is not calibrated: one view, in the rig "
+            "frame, not fused) and write the model folder (model.json, points.npz, "
+            "model.png, fused.ply, overlays/view_KK_overlay.png with the detected lines of "
+            "each view; docs/model-format.md). Never reads truth/."))
     p.add_argument("scan", type=Path, help="scan folder (with scan.json)")
     p.add_argument("--calib", type=Path, required=True,
                    help="calibrated rig (calib.json from 'nurbscan calibrate')")
@@ -52,8 +53,10 @@ def register(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Reconstruct ``args.scan`` with the rig ``args.calib`` into ``args.output``."""
+    from ..calibrate import turntable_calibrated
     from ..camera import load_rig
     from ..errors import NurbscanError
+    from ..io.atomic import read_json
     from ..merge import MergeOptions, MergeWarning, RegistrationOptions, TableOptions
     from ..merge.fusion import FusionOptions
     from ..reconstruct import reconstruct_scan
@@ -69,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
     fusion = None if args.no_fuse else FusionOptions(max_triangles=args.max_triangles)
     t0 = time.perf_counter()
     rig = load_rig(args.calib)
+    tt_ok = turntable_calibrated(read_json(args.calib))
 
     def say(msg: str) -> None:
         if not args.quiet:
@@ -79,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         model = reconstruct_scan(args.scan, rig, progress=say, views=args.views,
                                  min_curves=args.min_curves, workers=args.workers,
                                  overlays=Path(args.output) / "overlays", merge=merge,
-                                 fusion=fusion)
+                                 fusion=fusion, turntable_calibrated=tt_ok)
     if args.quiet:
         for w in model.meta.get("merge", {}).get("warnings", []):
             print(f"nurbscan reconstruct: warning: {w}", file=sys.stderr, flush=True)

@@ -25,6 +25,7 @@ from ..io import chroma_subsampled, read_image
 from ..io.atomic import read_json
 from ..merge import DEFAULT_MERGE, MergeOptions, merge_views
 from ..merge.frame import curve_to_object, rig_to_object, surface_to_object
+from ..pattern import LinePattern
 from .light import compare_light_surfaces, other_coordinate
 from .model import Model
 from .view import ViewResult, reconstruct_view
@@ -41,10 +42,22 @@ def _patch_samples(surface, per_span: int = 4):
     return X, N
 
 
+class RigFrame:
+    """The rig frame as the model's frame (a turntable that does not turn): a single view
+    reconstructed with a rig whose turntable is not calibrated stays where the camera saw it."""
+
+    def to_rig(self, points, angle: float = 0.0) -> np.ndarray:
+        return np.asarray(points, float)
+
+    def from_rig(self, points, angle: float = 0.0) -> np.ndarray:
+        return np.asarray(points, float)
+
+
 def add_view(model: Model, res: ViewResult, rig, index: int, angle: float,
-             extra: dict | None = None) -> None:
-    """Move one view's curves, surfaces and points into the object frame and add them."""
-    tt = rig.turntable
+             extra: dict | None = None, frame=None) -> None:
+    """Move one view's curves, surfaces and points into the object frame and add them
+    (``frame``: a :class:`RigFrame` keeps them in the rig frame)."""
+    tt = rig.turntable if frame is None else frame
     for direction, ln, c in res.line_curves():
         model.curves.append({"kind": f"{direction}_line", "view": index, "direction": direction,
                              "band": int(ln.band), "edge": int(ln.edge),
@@ -107,10 +120,12 @@ def _write_overlay(path: Path, image: np.ndarray, det, pattern, width: int = 153
     ``width`` px (area averaging)."""
     import cv2
 
-    from ..detect import draw_overlay
+    from ..detect import draw_line_overlay, draw_overlay
     from ..io import write_image
+    from ..pattern import LinePattern
 
-    rgb = draw_overlay(image, det, pattern)
+    draw = draw_line_overlay if isinstance(pattern, LinePattern) else draw_overlay
+    rgb = draw(image, det, pattern)
     if rgb.shape[1] > width:
         h = round(rgb.shape[0] * width / rgb.shape[1])
         rgb = cv2.resize(rgb, (width, h), interpolation=cv2.INTER_AREA)
@@ -188,10 +203,15 @@ def _view_job(job: dict):
     grid = read_image(job["grid"], as_float=False)
     white = read_image(job["white"], as_float=False) if job["white"] is not None else None
     t1 = time.perf_counter()
-    # a chroma-subsampled JPEG's colour channels have displaced edges (detect_grid)
     stages: dict = {}
-    det = reconstruct_detection(grid, job["pattern"], white, job["rig"],
-                                chroma_subsampled(job["grid"]), stages)
+    if isinstance(job["pattern"], LinePattern):  # thin lines: centre-lines (edge 2)
+        from ..detect import detect_lines
+
+        det = detect_lines(grid, job["pattern"], white=white)
+    else:
+        # a chroma-subsampled JPEG's colour channels have displaced edges (detect_grid)
+        det = reconstruct_detection(grid, job["pattern"], white, job["rig"],
+                                    chroma_subsampled(job["grid"]), stages)
     t2 = time.perf_counter()
     res = reconstruct_view(det, job["rig"], job["pattern"], **job["kwargs"])
     t3 = time.perf_counter()
@@ -208,7 +228,7 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
                      views: list[int] | None = None, workers: int = 1,
                      overlays: str | os.PathLike | None = None,
                      merge: MergeOptions | None = DEFAULT_MERGE, fusion=None,
-                     **view_kwargs) -> Model:
+                     turntable_calibrated: bool = True, **view_kwargs) -> Model:
     """Reconstruct every view of a scan folder and merge them in the object frame.
 
     Parameters
@@ -234,6 +254,11 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
     fusion : nurbscan.merge.FusionOptions, optional
         Fuse the merged views into one coloured mesh (``Model.fused``,
         :func:`nurbscan.merge.fuse_model`); None: no fused mesh.
+    turntable_calibrated : bool
+        False for a rig calibrated from free poses only
+        (:func:`nurbscan.calibrate.turntable_calibrated`): a single view is reconstructed in
+        the rig frame (``meta["frame"] = "rig"``); several views are refused
+        (:class:`NurbscanError`), they cannot be merged without the table's axis.
     **view_kwargs
         Passed to :func:`~nurbscan.reconstruct.view.reconstruct_view`.
     """
@@ -267,6 +292,15 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
                      "overlay": None if overlays is None
                      else Path(overlays) / f"view_{idx:02d}_overlay.png"})
     total = len(doc.get("views", []))
+    frame = None
+    if not turntable_calibrated:
+        if len(jobs) > 1:
+            from ..calibrate import TURNTABLE_NOT_CALIBRATED
+
+            raise NurbscanError(f"{scan / 'scan.json'}: {len(jobs)} views cannot be merged, "
+                                f"{TURNTABLE_NOT_CALIBRATED}; reconstruct one view (--views K)")
+        frame = RigFrame()
+        model.meta["frame"] = "rig"
 
     def done(i: int, out) -> None:
         res, nlines, t = out
@@ -281,12 +315,12 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
                                 strict=True):
         if "light_surface" not in model.meta and res.lines:
             model.meta["light_surface"] = light_surface_check(res, rig)
-        add_view(model, res, rig, job["index"], job["angle"], t)
-    if merge is not None:
+        add_view(model, res, rig, job["index"], job["angle"], t, frame=frame)
+    if merge is not None and frame is None:  # no table plane nor axis in the rig frame
         t_merge = time.perf_counter()
         merge_views(model, rig.turntable, merge, progress)
         model.meta["merge"]["merge_s"] = round(time.perf_counter() - t_merge, 3)
-    if fusion is not None:
+    if fusion is not None and frame is None:
         from ..merge.fusion import fuse_model
 
         model.fused = fuse_model(model, rig, {j["index"]: j["white"] for j in jobs}, fusion,

@@ -94,7 +94,13 @@ def reconstruct_view(det, rig, pattern=None, *, min_curves: int = 3,
         depth = float(np.median(np.concatenate(pts)[:, 2])) if pts else 600.0
         cam = rig.camera
         crossing_tol = 1.2 * depth * float(cam.dy) / float(cam.f)
-    pitch, band = (16.0, 6.0) if pattern is None else (float(pattern.pitch), float(pattern.band))
+    if pattern is None:
+        pitch, band = 16.0, 6.0
+    elif hasattr(pattern, "families"):  # a LinePattern: its closest line spacing and width
+        pitch = min(float(np.median(np.diff(f.centres))) for f in pattern.families)
+        band = max(float(np.median(f.widths)) for f in pattern.families)
+    else:
+        pitch, band = float(pattern.pitch), float(pattern.band)
     vl, hl, patches, mask = build_network(lines, min_curves=min_curves,
                                           crossing_tol=crossing_tol,
                                           gap=2.0 * pitch + band + 1.0, knot_spacing=pitch,
