@@ -19,7 +19,7 @@ def register(sub) -> None:
     """Add the ``demo`` sub-command."""
     p = sub.add_parser(
         "demo",
-        help="run the whole pipeline on the built-in teapot scene",
+        help="Run the whole pipeline on the built-in teapot scene",
         description=(
             "Run the whole pipeline on the built-in teapot scene: simulate, calibrate from "
             "the calibration images, reconstruct, export, evaluate and report. Writes "

@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import sys
+import time
 from pathlib import Path
 
 
 def register(sub) -> None:
     """Add the ``evaluate`` sub-command."""
     p = sub.add_parser(
-        "evaluate", help="measure a model against ground truth (the paper's Table I)",
+        "evaluate", help="Measure a model against ground truth (the paper's Table I)",
         description=(
             "Measure a reconstructed model against a simulated scan's truth as the paper's "
             "Table I does (100 samples per curve or patch, distance to the true surface; mean, "
@@ -23,6 +25,7 @@ def register(sub) -> None:
                         "table is written beside it with the suffix .md")
     p.add_argument("--cover-tol", type=float, default=0.5,
                    help="coverage tolerance, mm (0.5)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 
 
@@ -35,8 +38,15 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.cover_tol > 0:
         raise NurbscanError(f"--cover-tol {args.cover_tol}: must be positive")
+    t0 = time.perf_counter()
+
+    def say(msg: str) -> None:
+        if not args.quiet:
+            print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    say(f"load {args.model}")
     model = load_model(args.model)
-    ev = evaluate_model(model, args.truth, cover_tol=args.cover_tol, workers=2)
+    ev = evaluate_model(model, args.truth, cover_tol=args.cover_tol, workers=2, progress=say)
     out = args.output or (args.model / "evaluation.json")
     write_json(out, ev)
     md = format_table(ev)

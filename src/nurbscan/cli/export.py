@@ -13,7 +13,7 @@ FORMATS = ("glb", "obj", "ply", "stl", "3dm", "igs")
 def register(sub) -> None:
     """Add the ``export`` sub-command."""
     p = sub.add_parser(
-        "export", help="write a model as glb, obj, ply, stl, 3dm or igs",
+        "export", help="Write a model as glb, obj, ply, stl, 3dm or igs",
         description=(
             "Export a model folder. NURBS for CAD: 3dm (Rhino, rhino3dm) and igs (IGES 5.3, "
             "entities 126/128), in mm, holding the curves and surfaces of --kinds. Meshes for VR: "

@@ -12,7 +12,7 @@ from pathlib import Path
 def register(sub) -> None:
     """Add the ``reconstruct`` sub-command."""
     p = sub.add_parser(
-        "reconstruct", help="build 3-D NURBS curves and surfaces from a scan",
+        "reconstruct", help="Build 3-D NURBS curves, surfaces and one fused mesh from a scan",
         description=(
             "Detect the grid in every view of a scan folder, triangulate its labelled edge "
             "lines with the calibrated rig, build the curve network, skins and Gordon "

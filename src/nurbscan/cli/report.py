@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import sys
+import time
 from pathlib import Path
 
 
 def register(sub) -> None:
     """Add the ``report`` sub-command."""
     p = sub.add_parser(
-        "report", help="write a self-contained HTML scan report",
+        "report", help="Write a self-contained HTML scan report",
         description=(
             "Write one HTML file (no network needed) with an interactive 3-D view of the model "
             "(colour and, if the scan's truth is found, an error heat map), the accuracy table "
@@ -27,6 +29,7 @@ def register(sub) -> None:
                         "views now (default: detect up to 4 views)")
     p.add_argument("--no-heat-map", action="store_true",
                    help="skip the per-vertex error heat map")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 
 
@@ -34,8 +37,14 @@ def run(args: argparse.Namespace) -> int:
     """Write the report of ``args.model`` to ``args.output``."""
     from ..report import write_report
 
+    t0 = time.perf_counter()
+
+    def say(msg: str) -> None:
+        if not args.quiet:
+            print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
+
     out = write_report(args.model, args.output, overlays=args.overlay,
                        evaluation=args.evaluation, heat_map=not args.no_heat_map,
-                       detect=not args.no_detect)
+                       detect=not args.no_detect, progress=say)
     print(f"wrote {out} ({out.stat().st_size} bytes)")
     return 0

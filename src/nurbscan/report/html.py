@@ -206,7 +206,7 @@ def report_html(title: str, meshes: dict[str, bytes], evaluation: dict | None, m
 
 def build_report(model_dir: str | os.PathLike, overlays=None, evaluation=None,
                  per_span: int | None = None, heat_map: bool = True,
-                 detect: bool = True) -> str:
+                 detect: bool = True, progress=None) -> str:
     """The report page of a model folder.
 
     Parameters
@@ -226,22 +226,32 @@ def build_report(model_dir: str | os.PathLike, overlays=None, evaluation=None,
         When no overlay picture is given or found, detect the lines of the scan's first views
         now (:func:`detect_overlays`) if the scan folder is found.
     """
-    from ..export import _resolve, build_mesh, find_rig, find_white_images, load_model
+    from ..export import _resolve, build_mesh, find_rig, find_white_images, fused_mesh, load_model
     from ..export.mesh import mesh_bytes
 
+    say = progress or (lambda _msg: None)
     folder = Path(model_dir)
+    say(f"load {folder}")
     model = load_model(folder)
     notes = []
     rig = find_rig(model)
-    images = find_white_images(model) if rig is not None else {}
-    mesh = build_mesh(model, rig, images, per_span=per_span)
-    notes.append(f"Mesh: {mesh.info['patches']} patches, {mesh.info['vertices']} vertices, "
-                 f"{mesh.info['faces']} triangles, watertight: {mesh.info['watertight']}; "
-                 f"colour: {mesh.info['colour']}.")
+    if getattr(model, "fused", None) is not None:  # the one model of the object
+        say(f"the fused mesh ({len(model.fused.faces)} triangles)")
+        mesh = fused_mesh(model)
+        notes.append(f"Mesh: the fused mesh of the views, {len(mesh.vertices)} vertices, "
+                     f"{len(mesh.faces)} triangles.")
+    else:
+        say("the per-view Gordon patches, tessellated and coloured")
+        images = find_white_images(model) if rig is not None else {}
+        mesh = build_mesh(model, rig, images, per_span=per_span)
+        notes.append(f"Mesh: {mesh.info['patches']} patches, {mesh.info['vertices']} vertices, "
+                     f"{mesh.info['faces']} triangles, watertight: {mesh.info['watertight']}; "
+                     f"colour: {mesh.info['colour']}.")
     meshes = {"colour": mesh_bytes(mesh, "glb")}
     scan = _resolve(model.meta.get("source"), model)
     vmax = None
     if heat_map and scan is not None and (scan / "truth" / "scene.json").is_file():
+        say("error heat map against the truth")
         err = vertex_errors(mesh.vertices, scan / "truth")
         vmax = float(np.percentile(err, 99)) or 1e-3
         heat = type(mesh)(mesh.vertices, mesh.faces, error_colours(err, vmax),
@@ -265,6 +275,7 @@ def build_report(model_dir: str | os.PathLike, overlays=None, evaluation=None,
             raise NurbscanError(f"{p}: not a readable overlay image")
         ov.append((Path(p).name, _png_uri(img)))
     if not ov and detect and scan is not None and (scan / "scan.json").is_file():
+        say("detect the lines of the first views for the overlay pictures")
         ov = detect_overlays(scan, rig=rig)
     pic = folder / "model.png"
     pic_uri = None
