@@ -231,8 +231,8 @@ def smooth_chains(along: np.ndarray, across: np.ndarray, line: np.ndarray,
     return np.where(np.isfinite(c0), c0, across)
 
 
-def local_residual(along: np.ndarray, across: np.ndarray, line: np.ndarray, reach: int = 4
-                   ) -> np.ndarray:
+def local_residual(along: np.ndarray, across: np.ndarray, line: np.ndarray, reach: int = 4,
+                   at: np.ndarray | None = None) -> np.ndarray:
     """Distance of each point from the straight line fitted to its chain neighbours.
 
     For point i of a chain, the points i - reach .. i + reach of the same chain, i itself left
@@ -242,13 +242,14 @@ def local_residual(along: np.ndarray, across: np.ndarray, line: np.ndarray, reac
     sampling axis has its ``across`` noise enlarged by ``sqrt(1 + c1^2)``, and its points'
     distance to the true edge is the perpendicular one. A point off its own chain by more
     than the noise is an outlier (a disturbed profile at a crossing's corner). Arrays (M,)
-    ordered by chain as returned by :func:`trace_lines`.
+    ordered by chain as returned by :func:`trace_lines`; with ``at`` (Q,) int, the residuals
+    of those points only, (Q,).
     """
-    if len(along) == 0:
+    if len(along) == 0 or (at is not None and len(at) == 0):
         return np.zeros(0)
     offs = np.r_[np.arange(-reach, 0), np.arange(1, reach + 1)]
-    c0, c1, sw, _ = _window_fit(along, across, line, offs)
-    res = np.abs(across - c0) / np.hypot(1.0, np.nan_to_num(c1))
+    c0, c1, sw, _ = _window_fit(along, across, line, offs, at=at)
+    res = np.abs((across if at is None else across[at]) - c0) / np.hypot(1.0, np.nan_to_num(c1))
     return np.where((sw >= 3) & np.isfinite(res), res, 0.0)
 
 
