@@ -148,8 +148,8 @@ class EdgePoints:
 
 
 def family_normals(gx: np.ndarray, gy: np.ndarray, strong: np.ndarray, tile: int = 48,
-                   bins: int = 36, min_ratio: float = 0.15, min_separation: float = 0.35
-                   ) -> tuple[np.ndarray, np.ndarray]:
+                   bins: int = 36, min_ratio: float = 0.15, min_separation: float = 0.35,
+                   pixels: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Local normal directions of the vertical and the horizontal band edges (radians).
 
     The gradient directions ``atan2(gy, gx)`` (mod pi) of the ``strong`` pixels are
@@ -168,6 +168,8 @@ def family_normals(gx: np.ndarray, gy: np.ndarray, strong: np.ndarray, tile: int
         Gradient of the edge signal.
     strong : ndarray (H, W) bool
         Edge pixels to count.
+    pixels : (iy, ix, gx, gy), optional
+        ``np.nonzero(strong)`` and the gradient there, when the caller has them.
 
     Returns
     -------
@@ -176,8 +178,11 @@ def family_normals(gx: np.ndarray, gy: np.ndarray, strong: np.ndarray, tile: int
     """
     h, w = gx.shape
     ty, tx = -(-h // tile), -(-w // tile)
-    iy, ix = np.nonzero(strong)
-    ax, ay = gx[iy, ix], gy[iy, ix]
+    if pixels is None:
+        iy, ix = np.nonzero(strong)
+        ax, ay = gx[iy, ix], gy[iy, ix]
+    else:
+        iy, ix, ax, ay = pixels
     phi = np.mod(np.arctan2(ay, ax), np.pi)
     b = np.minimum((phi * (bins / np.pi)).astype(np.int64), bins - 1)
     t = (iy // tile).astype(np.int64) * tx + ix // tile
@@ -452,9 +457,9 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     av = ah = None  # the image axes
     if families:
         # the gradient's components along the two families' local normals
-        tv, th = family_normals(gx, gy, strong)
         sy, sx = np.nonzero(strong)
         gxs, gys = gx[sy, sx], gy[sy, sx]
+        tv, th = family_normals(gx, gy, strong, pixels=(sy, sx, gxs, gys))
         # |g . n|^2 = (|g|^2 + (gx^2 - gy^2) cos 2t + 2 gx gy sin 2t) / 2 for n at angle t,
         # with the doubled-angle vectors interpolated bilinearly between the tiles
         mag2, diff2, prod2 = gxs * gxs + gys * gys, gxs * gxs - gys * gys, 2.0 * gxs * gys
