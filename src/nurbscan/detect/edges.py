@@ -575,7 +575,8 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     Parameters
     ----------
     channels : sequence of 3 ndarray (H, W) float32
-        Normalised colour channels.
+        Normalised colour channels (indexed once each, in order: a lazy sequence such as
+        :meth:`~nurbscan.detect.normalize.Normalised.lazy_planes` holds one at a time).
     ix, iy : (N,) int
         Edge pixels; ``cls`` (N,) their classes (0..3, :data:`CLASSES`).
     colour : (N, 3) bool
@@ -627,10 +628,14 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
         across = axes
     ux, uy = (np.asarray(across, np.float64).T[:, :, None] * sgn[None, :, None])
 
-    # (N, 3): the samples along each point's fit line, from taps shared by all the images
-    taps = line_taps(ix, iy, np.where(vert, 0, 1), sl, steps, channels[0].shape)
+    taps = None
     for c in range(3):
-        gx, gy = gradient(channels[c], sigma, sigma_along)
+        img = channels[c]  # (a lazy sequence computes each plane here: one at a time)
+        if taps is None:
+            # (N, 3): the samples along each point's fit line, from taps shared by the images
+            taps = line_taps(ix, iy, np.where(vert, 0, 1), sl, steps, img.shape)
+        gx, gy = gradient(img, sigma, sigma_along)
+        del img
         prof = sample_taps(gx, *taps) * ux + sample_taps(gy, *taps) * uy
         cx, cy = gx[iy, ix], gy[iy, ix]
         along = nx * cy - ny * cx

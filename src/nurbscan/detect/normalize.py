@@ -94,9 +94,29 @@ class Normalised:
         """The three normalised channels, (H, W) float32 each."""
         return [c * i for c, i in zip(self.channels, self._inverses(), strict=True)]
 
+    def lazy_planes(self) -> _LazyPlanes:
+        """The three normalised channels as a sequence that computes each when indexed (one
+        image-sized array at a time instead of three)."""
+        return _LazyPlanes(self)
+
     def image(self) -> np.ndarray:
         """The full normalised image (H, W, 3) float32 (for inspection; not used inside)."""
         return np.stack(self.planes(), axis=2)
+
+
+class _LazyPlanes:
+    """:meth:`Normalised.planes`, each plane computed when indexed."""
+
+    def __init__(self, nrm: Normalised):
+        self._nrm = nrm
+
+    def __len__(self) -> int:
+        return 3
+
+    def __getitem__(self, c: int) -> np.ndarray:
+        if not -3 <= c < 3:
+            raise IndexError(c)
+        return self._nrm.channels[c] * self._nrm._inverses()[c]
 
 
 def _planes(image, what: str) -> tuple:

@@ -160,7 +160,7 @@ def refine_points(sel: Selection, chains: Chains, reading: Reading, prep: Prepar
     if refine:
         # second pass: re-measure each point in its band's clean colour channels
         seq = np.asarray(pattern.sequence)
-        chn = prep.normalised.planes()
+        chn = prep.normalised.lazy_planes()
         colour = np.asarray(pattern.rgb)[seq[lab[line]]] > 127
         vk = cls[keep] < 2
         normal = None
