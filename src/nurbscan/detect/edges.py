@@ -444,9 +444,8 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     if fit_line not in ("balanced", "row"):
         raise NurbscanError(f"fit_line={fit_line!r}: must be 'balanced' or 'row'")
     gx, gy = gradient(signal, sigma, sigma_along)
-    m = cv2.magnitude(gx, gy)
-    h, w = m.shape
-    strong = m > threshold
+    h, w = gx.shape
+    strong = cv2.magnitude(gx, gy) > threshold  # (the magnitude is not kept)
     if valid is not None:
         strong &= valid
     # the filters reflect the image at its border: no edges within 3 sigma + 1 px of it
