@@ -161,8 +161,8 @@ def chain_end_residual(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line
     along, across, counts, first, stop = _chains(x, y, direction, line)
     ends = np.unique(np.r_[first[counts > 0], stop[counts > 0] - 1])
     c0, ok = neighbour_fit(along, across, line, np.ones(n, bool), reach=reach,
-                           both_sides=False)
-    out[ends] = np.where(ok[ends], np.abs(across[ends] - c0[ends]), 0.0)
+                           both_sides=False, at=ends)  # (the fits at the ends only)
+    out[ends] = np.where(ok, np.abs(across[ends] - c0), 0.0)
     return out
 
 
@@ -285,7 +285,9 @@ def extend_lines(x, y, strength, line, direction, edge, extra, shape, min_streng
     new = np.r_[np.zeros(len(line), bool), np.ones(len(a), bool)][o]
     line = line_all[o]
     vk = direction[line] == 0
+    at = np.nonzero(new)[0]  # (the fits at the new points only)
     c0, ok = neighbour_fit(np.where(vk, y, x), np.where(vk, x, y), line, ~new, reach=reach,
-                           both_sides=False)
-    keep = ~new | (ok & (np.abs(np.where(vk, x, y) - c0) <= tol))
+                           both_sides=False, at=at)
+    keep = ~new
+    keep[at] = ok & (np.abs(np.where(vk, x, y)[at] - c0) <= tol)
     return x[keep], y[keep], strength[keep], line[keep]

@@ -148,8 +148,8 @@ class EdgePoints:
 
 
 def family_normals(gx: np.ndarray, gy: np.ndarray, strong: np.ndarray, tile: int = 48,
-                   bins: int = 36, min_ratio: float = 0.15, min_separation: float = 0.35
-                   ) -> tuple[np.ndarray, np.ndarray]:
+                   bins: int = 36, min_ratio: float = 0.15, min_separation: float = 0.35,
+                   pixels: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Local normal directions of the vertical and the horizontal band edges (radians).
 
     The gradient directions ``atan2(gy, gx)`` (mod pi) of the ``strong`` pixels are
@@ -168,6 +168,8 @@ def family_normals(gx: np.ndarray, gy: np.ndarray, strong: np.ndarray, tile: int
         Gradient of the edge signal.
     strong : ndarray (H, W) bool
         Edge pixels to count.
+    pixels : (iy, ix, gx, gy), optional
+        ``np.nonzero(strong)`` and the gradient there, when the caller has them.
 
     Returns
     -------
@@ -176,8 +178,11 @@ def family_normals(gx: np.ndarray, gy: np.ndarray, strong: np.ndarray, tile: int
     """
     h, w = gx.shape
     ty, tx = -(-h // tile), -(-w // tile)
-    iy, ix = np.nonzero(strong)
-    ax, ay = gx[iy, ix], gy[iy, ix]
+    if pixels is None:
+        iy, ix = np.nonzero(strong)
+        ax, ay = gx[iy, ix], gy[iy, ix]
+    else:
+        iy, ix, ax, ay = pixels
     phi = np.mod(np.arctan2(ay, ax), np.pi)
     b = np.minimum((phi * (bins / np.pi)).astype(np.int64), bins - 1)
     t = (iy // tile).astype(np.int64) * tx + ix // tile
@@ -439,9 +444,8 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     if fit_line not in ("balanced", "row"):
         raise NurbscanError(f"fit_line={fit_line!r}: must be 'balanced' or 'row'")
     gx, gy = gradient(signal, sigma, sigma_along)
-    m = cv2.magnitude(gx, gy)
-    h, w = m.shape
-    strong = m > threshold
+    h, w = gx.shape
+    strong = cv2.magnitude(gx, gy) > threshold  # (the magnitude is not kept)
     if valid is not None:
         strong &= valid
     # the filters reflect the image at its border: no edges within 3 sigma + 1 px of it
@@ -452,9 +456,9 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     av = ah = None  # the image axes
     if families:
         # the gradient's components along the two families' local normals
-        tv, th = family_normals(gx, gy, strong)
         sy, sx = np.nonzero(strong)
         gxs, gys = gx[sy, sx], gy[sy, sx]
+        tv, th = family_normals(gx, gy, strong, pixels=(sy, sx, gxs, gys))
         # |g . n|^2 = (|g|^2 + (gx^2 - gy^2) cos 2t + 2 gx gy sin 2t) / 2 for n at angle t,
         # with the doubled-angle vectors interpolated bilinearly between the tiles
         mag2, diff2, prod2 = gxs * gxs + gys * gys, gxs * gxs - gys * gys, 2.0 * gxs * gys
@@ -570,7 +574,8 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     Parameters
     ----------
     channels : sequence of 3 ndarray (H, W) float32
-        Normalised colour channels.
+        Normalised colour channels (indexed once each, in order: a lazy sequence such as
+        :meth:`~nurbscan.detect.normalize.Normalised.lazy_planes` holds one at a time).
     ix, iy : (N,) int
         Edge pixels; ``cls`` (N,) their classes (0..3, :data:`CLASSES`).
     colour : (N, 3) bool
@@ -622,10 +627,14 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
         across = axes
     ux, uy = (np.asarray(across, np.float64).T[:, :, None] * sgn[None, :, None])
 
-    # (N, 3): the samples along each point's fit line, from taps shared by all the images
-    taps = line_taps(ix, iy, np.where(vert, 0, 1), sl, steps, channels[0].shape)
+    taps = None
     for c in range(3):
-        gx, gy = gradient(channels[c], sigma, sigma_along)
+        img = channels[c]  # (a lazy sequence computes each plane here: one at a time)
+        if taps is None:
+            # (N, 3): the samples along each point's fit line, from taps shared by the images
+            taps = line_taps(ix, iy, np.where(vert, 0, 1), sl, steps, img.shape)
+        gx, gy = gradient(img, sigma, sigma_along)
+        del img
         prof = sample_taps(gx, *taps) * ux + sample_taps(gy, *taps) * uy
         cx, cy = gx[iy, ix], gy[iy, ix]
         along = nx * cy - ny * cx

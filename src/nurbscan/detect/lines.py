@@ -131,24 +131,25 @@ def fit_lines(t: np.ndarray, v: np.ndarray, wts: np.ndarray):
 
 def _window_fit(along: np.ndarray, across: np.ndarray, line: np.ndarray, offs: np.ndarray,
                 use: np.ndarray | None = None, weight: np.ndarray | None = None,
-                reach: float | None = None):
+                reach: float | None = None, at: np.ndarray | None = None):
     """Least-squares lines ``across = c0 + c1 (along - along_i)`` through the points i + offs
     of each point's chain (those with ``use``, and within ``reach`` px of ``along_i`` if
     given), weighted by ``weight`` (M,) (default 1) (:func:`fit_lines`). Returns c0, c1 (M,),
     the weight sums sw (M,) (the number of points without ``weight``) and the weights
-    (M, len(offs))."""
+    (M, len(offs)); with ``at`` (Q,) int, for the points i in ``at`` only ((Q,), (Q, K): the
+    same numbers, each point's fit is its own)."""
     n = len(along)
-    i = np.arange(n)
+    i = np.arange(n) if at is None else np.asarray(at, np.int64)
     counts = np.bincount(line)
     stop = np.cumsum(counts)
-    first = (stop - counts)[line]
-    last = stop[line] - 1
+    first = (stop - counts)[line[i]]
+    last = stop[line[i]] - 1
     j = i[:, None] + offs[None, :]
     inside = (j >= first[:, None]) & (j <= last[:, None])
     j = np.clip(j, 0, n - 1)
     if use is not None:
         inside &= use[j]
-    dt = along[j] - along[:, None]
+    dt = along[j] - along[i][:, None]
     if reach is not None:
         inside &= np.abs(dt) <= reach
     wts = inside.astype(np.float64)
@@ -230,8 +231,8 @@ def smooth_chains(along: np.ndarray, across: np.ndarray, line: np.ndarray,
     return np.where(np.isfinite(c0), c0, across)
 
 
-def local_residual(along: np.ndarray, across: np.ndarray, line: np.ndarray, reach: int = 4
-                   ) -> np.ndarray:
+def local_residual(along: np.ndarray, across: np.ndarray, line: np.ndarray, reach: int = 4,
+                   at: np.ndarray | None = None) -> np.ndarray:
     """Distance of each point from the straight line fitted to its chain neighbours.
 
     For point i of a chain, the points i - reach .. i + reach of the same chain, i itself left
@@ -241,13 +242,14 @@ def local_residual(along: np.ndarray, across: np.ndarray, line: np.ndarray, reac
     sampling axis has its ``across`` noise enlarged by ``sqrt(1 + c1^2)``, and its points'
     distance to the true edge is the perpendicular one. A point off its own chain by more
     than the noise is an outlier (a disturbed profile at a crossing's corner). Arrays (M,)
-    ordered by chain as returned by :func:`trace_lines`.
+    ordered by chain as returned by :func:`trace_lines`; with ``at`` (Q,) int, the residuals
+    of those points only, (Q,).
     """
-    if len(along) == 0:
+    if len(along) == 0 or (at is not None and len(at) == 0):
         return np.zeros(0)
     offs = np.r_[np.arange(-reach, 0), np.arange(1, reach + 1)]
-    c0, c1, sw, _ = _window_fit(along, across, line, offs)
-    res = np.abs(across - c0) / np.hypot(1.0, np.nan_to_num(c1))
+    c0, c1, sw, _ = _window_fit(along, across, line, offs, at=at)
+    res = np.abs((across if at is None else across[at]) - c0) / np.hypot(1.0, np.nan_to_num(c1))
     return np.where((sw >= 3) & np.isfinite(res), res, 0.0)
 
 
@@ -358,20 +360,22 @@ def join_collinear(x: np.ndarray, y: np.ndarray, cls: np.ndarray, line: np.ndarr
 
 
 def neighbour_fit(along: np.ndarray, across: np.ndarray, line: np.ndarray, use: np.ndarray,
-                  reach: int = 5, both_sides: bool = True) -> tuple[np.ndarray, np.ndarray]:
+                  reach: int = 5, both_sides: bool = True, at: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """Across-edge position of each point predicted from its chain neighbours' straight line.
 
     For point i, the points i - reach .. i + reach of the same chain with ``use`` true (i
     itself left out) are fitted by weighted least squares ``across = c0 + c1 (along -
     along_i)``; returns ``c0`` (M,) px and a bool (M,) that is true where at least 3 such
     neighbours exist, on both sides of the point (an interpolation, not an extrapolation).
-    Arrays (M,) ordered by chain as returned by :func:`trace_lines`.
+    Arrays (M,) ordered by chain as returned by :func:`trace_lines`; with ``at`` (Q,) int,
+    the results for those points only, (Q,) (the same numbers, computed for them alone).
     """
-    if len(along) == 0:
+    if len(along) == 0 or (at is not None and len(at) == 0):
         return np.zeros(0), np.zeros(0, bool)
     offs = np.r_[np.arange(-reach, 0), np.arange(1, reach + 1)]
-    c0, _, sw, wts = _window_fit(along, across, line, offs, use)
+    c0, _, sw, wts = _window_fit(along, across, line, offs, use, at=at)
     before = (wts[:, :reach] > 0).any(1)
     after = (wts[:, reach:] > 0).any(1)
     ok = (sw >= 3) & ((before & after) | (not both_sides)) & np.isfinite(c0)
-    return np.where(ok, c0, across), ok
+    return np.where(ok, c0, across if at is None else across[at]), ok

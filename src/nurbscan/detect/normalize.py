@@ -94,9 +94,29 @@ class Normalised:
         """The three normalised channels, (H, W) float32 each."""
         return [c * i for c, i in zip(self.channels, self._inverses(), strict=True)]
 
+    def lazy_planes(self) -> _LazyPlanes:
+        """The three normalised channels as a sequence that computes each when indexed (one
+        image-sized array at a time instead of three)."""
+        return _LazyPlanes(self)
+
     def image(self) -> np.ndarray:
         """The full normalised image (H, W, 3) float32 (for inspection; not used inside)."""
         return np.stack(self.planes(), axis=2)
+
+
+class _LazyPlanes:
+    """:meth:`Normalised.planes`, each plane computed when indexed."""
+
+    def __init__(self, nrm: Normalised):
+        self._nrm = nrm
+
+    def __len__(self) -> int:
+        return 3
+
+    def __getitem__(self, c: int) -> np.ndarray:
+        if not -3 <= c < 3:
+            raise IndexError(c)
+        return self._nrm.channels[c] * self._nrm._inverses()[c]
 
 
 def _planes(image, what: str) -> tuple:
@@ -118,7 +138,7 @@ LUMA_601 = (0.299, 0.587, 0.114)
 
 
 def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 31,
-              floor: float = 0.03, weights=None) -> Normalised:
+              floor: float = 0.03, weights=None, overwrite: bool = False) -> Normalised:
     """Normalise a (linear) grid image for albedo, shading and illumination.
 
     Parameters
@@ -137,6 +157,9 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
         equal, :func:`edge_signal`). Any positive weights keep its crossing-band property;
         for a JPEG with subsampled colour the luma weights (``LUMA_601``) leave out most of
         the blurred colour.
+    overwrite : bool
+        With a white image, the image's float32 planes may be overwritten (the caller's
+        linearised copies: saves three image-sized arrays).
 
     Returns
     -------
@@ -147,7 +170,8 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
     # dark level: local minimum of the grid image (ambient light in the black gaps)
     dark = smooth_field(cv2.min(cv2.min(chans[0], chans[1]), chans[2]), window / 3, "min",
                         window)
-    chans = tuple(cv2.subtract(c, dark) for c in chans)
+    in_place = overwrite and white is not None  # (chans_in is needed without a white image)
+    chans = tuple(cv2.subtract(c, dark, dst=c if in_place else None) for c in chans)
     if white is not None:
         wp = _planes(white, "white image")
         if wp[0].shape != chans[0].shape:
@@ -155,9 +179,11 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
                 f"white image: size {wp[0].shape[1]}x{wp[0].shape[0]} does not match the grid "
                 f"image's {chans[0].shape[1]}x{chans[0].shape[0]}"
             )
-        wc = [cv2.GaussianBlur(c, (0, 0), 0.7) for c in wp]
-        dens = [cv2.subtract(c, dark) for c in wc]
-        valid = np.maximum(np.maximum(dens[0], dens[1]), dens[2]) > floor
+        dens = []
+        for c in wp:  # the blurred white minus the dark level, in place (no fresh 28 MB)
+            d = cv2.GaussianBlur(c, (0, 0), 0.7)
+            dens.append(cv2.subtract(d, dark, dst=d))
+        valid = cv2.max(cv2.max(dens[0], dens[1]), dens[2]) > floor
         for d in dens:  # 1 / max(d, floor), in place (no fresh 28 MB arrays)
             np.maximum(d, np.float32(floor), out=d)
             np.reciprocal(d, out=d)
@@ -173,11 +199,21 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
     if wts.shape != (3,) or not np.all(wts >= 0) or not wts.sum() > 0:
         raise NurbscanError(f"weights={weights!r}: need three non-negative channel weights")
     wts = (3.0 * wts / wts.sum()).astype(np.float32)
-    signal = chans[0] * (inv3[0] * wts[0])
-    signal += chans[1] * (inv3[1] * wts[1])
-    signal += chans[2] * (inv3[2] * wts[2])
-    return Normalised(signal=signal.astype(np.float32, copy=False), valid=valid,
-                      channels=chans, inverse=inv)
+    # signal = sum_c chans_c * (inv_c * wts_c), in two buffers (a weight of 1 multiplies
+    # exactly: left out)
+    signal = np.empty_like(chans[0])
+    term = np.empty_like(chans[0])
+    for c in range(3):
+        out = signal if c == 0 else term
+        if wts[c] == 1:
+            np.multiply(chans[c], inv3[c], out=out)
+        else:
+            np.multiply(inv3[c], wts[c], out=out)
+            np.multiply(chans[c], out, out=out)
+        if c:
+            signal += term
+    del term
+    return Normalised(signal=signal, valid=valid, channels=chans, inverse=inv)
 
 
 def edge_signal(norm: np.ndarray) -> np.ndarray:

@@ -81,7 +81,7 @@ def prepare(image, white, pattern, options, sigma: float | None = None,
         raise NoGrid("image: overexposed (more than half the pixels saturated), no grid found",
                      (w, h))
     nrm = normalize(lin, wl, window=options.window,
-                    weights=LUMA_601 if options.chroma_subsampled else None)
+                    weights=LUMA_601 if options.chroma_subsampled else None, overwrite=True)
     del lin, wl
     sig = nrm.signal
     band_px_est = band_width_px(sig, pattern, nrm.valid)

@@ -122,7 +122,8 @@ def select_points(chains: Chains, reading: Reading, labels: Labels, prep: Prepar
     if options.max_residual > 0:
         along = np.where(cls < 2, py, px)
         across = np.where(cls < 2, px, py)
-        paired &= local_residual(along, across, line) <= options.max_residual
+        at = np.nonzero(paired)[0]  # (the residuals that matter only)
+        paired[at] = local_residual(along, across, line, at=at) <= options.max_residual
     if CROSSING_MARGIN > 0:
         # near a crossing band's edge the row (column) profile is disturbed by the corner
         w, h = prep.size
@@ -159,7 +160,7 @@ def refine_points(sel: Selection, chains: Chains, reading: Reading, prep: Prepar
     if refine:
         # second pass: re-measure each point in its band's clean colour channels
         seq = np.asarray(pattern.sequence)
-        chn = prep.normalised.planes()
+        chn = prep.normalised.lazy_planes()
         colour = np.asarray(pattern.rgb)[seq[lab[line]]] > 127
         vk = cls[keep] < 2
         normal = None
@@ -175,9 +176,13 @@ def refine_points(sel: Selection, chains: Chains, reading: Reading, prep: Prepar
         del chn
         # points with no clean channel (their crossing band shares the band's channels) are
         # placed on the straight line through their re-measured chain neighbours
-        c0, okf = neighbour_fit(*_along_across(px, py, vk), line, done,
-                                both_sides=False)
-        fix = okf & ~done
+        at = np.nonzero(~done)[0]  # (the fits that matter only)
+        c0_at, okf = neighbour_fit(*_along_across(px, py, vk), line, done,
+                                   both_sides=False, at=at)
+        fix = np.zeros(len(px), bool)
+        fix[at] = okf
+        c0 = np.zeros(len(px))
+        c0[at] = c0_at
         px = np.where(fix & vk, c0, px)
         py = np.where(fix & ~vk, c0, py)
         # unpaired points (kept with keep_unpaired) only where re-measured
@@ -190,8 +195,9 @@ def refine_points(sel: Selection, chains: Chains, reading: Reading, prep: Prepar
         if options.refit_residual > 0:
             # a point off the straight line through its re-measured neighbours (a kink where
             # the edge meets an occluding contour, a disturbed corner) is dropped
-            res = local_residual(*_along_across(px, py, vk), line)
-            kp &= res <= options.refit_residual
+            at = np.nonzero(kp)[0]  # (the residuals that matter only)
+            kp[at] = local_residual(*_along_across(px, py, vk), line, at=at) \
+                <= options.refit_residual
         if partner_drops != "none":
             # a point whose crossing partner was dropped is as disturbed (same row, same band);
             # with "unmeasured", not when the partner went as a kink (its own corner)
