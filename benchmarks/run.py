@@ -93,6 +93,14 @@ TARGETS = [
     ("fused mesh connected parts (teapot)", "fusion", "parts", "<=", 3),
     ("fused mesh glb size (MB)", "fusion", "glb / MB", "<=", 15.0),
     ("fused mesh fusion CPU time (s)", "fusion", "fusion / cpu s", "<=", 60.0),
+    ("real photographs: grid lines on the board's white area decoded (share)", "real_detect",
+     "poses_total / share", ">=", 0.95),
+    ("real photographs: lines decoded with a wrong label", "real_detect", "poses_total / wrong",
+     "<=", 0),
+    ("real rig: camera reprojection RMS (px)", "real_calibrate",
+     "calibration (poses 1-8) / camera RMS, camera-only Tsai fit (px)", "<=", 0.16),
+    ("real rig: projector reprojection RMS (projector px)", "real_calibrate",
+     "calibration (poses 1-8) / projector RMS per decoded coordinate (projector px)", "<=", 0.2),
 ]
 #: A slope counts as linear within this distance of 1.
 SLOPE_TOL = 0.2
