@@ -33,9 +33,14 @@ from typing import Any
 import numpy as np
 
 from ..errors import NurbscanError
-from ..io import write_image, write_json
 from ..io.atomic import read_json
-from .lines import LINE_PATTERN_TYPE, LineFamily, LinePattern, window_length
+from .lines import (
+    LINE_PATTERN_TYPE,
+    LineFamily,
+    LinePattern,
+    save_pattern_files,
+    window_length,
+)
 from .sequence import (
     check_field,
     check_primitive,
@@ -460,16 +465,7 @@ class Pattern:
 
         Returns the (image, sidecar) paths.
         """
-        image_path = Path(image_path)
-        if image_path.suffix.lower() not in (".png", ".tif", ".tiff"):
-            raise NurbscanError(
-                f"{image_path}: pattern image must be .png or .tif (lossless), not "
-                f"{image_path.suffix or 'no suffix'!r}"
-            )
-        json_path = sidecar_path(image_path)
-        write_image(image_path, self.render())
-        write_json(json_path, self.to_dict())
-        return image_path, json_path
+        return save_pattern_files(image_path, self.render(), self.to_dict())
 
     def to_line_pattern(self) -> LinePattern:
         """The same grid as a :class:`~nurbscan.pattern.lines.LinePattern`.

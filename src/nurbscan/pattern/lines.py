@@ -88,6 +88,22 @@ def _unique_windows(codes: np.ndarray, n: int) -> bool:
     return len(np.unique(keys)) == len(keys)
 
 
+def save_pattern_files(image_path: str | os.PathLike, image: np.ndarray, sidecar: dict
+                       ) -> tuple[Path, Path]:
+    """Write a pattern's image (PNG or TIFF, lossless) and its ``.json`` sidecar beside it,
+    each atomically; return the (image, sidecar) paths."""
+    image_path = Path(image_path)
+    if image_path.suffix.lower() not in (".png", ".tif", ".tiff"):
+        raise NurbscanError(
+            f"{image_path}: pattern image must be .png or .tif (lossless), not "
+            f"{image_path.suffix or 'no suffix'!r}"
+        )
+    json_path = image_path.with_suffix(".json")
+    write_image(image_path, image)
+    write_json(json_path, sidecar)
+    return image_path, json_path
+
+
 def window_length(
     codes_per_direction: Mapping[str, Sequence[int]] | Sequence[Sequence[int] | None],
     max_n: int = MAX_WINDOW,
@@ -526,16 +542,7 @@ class LinePattern:
 
         Returns the (image, sidecar) paths.
         """
-        image_path = Path(image_path)
-        if image_path.suffix.lower() not in (".png", ".tif", ".tiff"):
-            raise NurbscanError(
-                f"{image_path}: pattern image must be .png or .tif (lossless), not "
-                f"{image_path.suffix or 'no suffix'!r}"
-            )
-        json_path = image_path.with_suffix(".json")
-        write_image(image_path, self.render())
-        write_json(json_path, self.to_dict())
-        return image_path, json_path
+        return save_pattern_files(image_path, self.render(), self.to_dict())
 
     def summary(self) -> str:
         """One line describing the pattern."""
