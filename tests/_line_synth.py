@@ -14,6 +14,27 @@ import cv2
 import numpy as np
 
 
+def de_bruijn(k: int, n: int) -> list[int]:
+    """De Bruijn sequence B(k, n), cyclic: the Fredricksen-Kessler-Maiorana (Lyndon word)
+    algorithm, an oracle independent of nurbscan.pattern's sequences."""
+    a = [0] * k * n
+    seq: list[int] = []
+
+    def db(t, p):
+        if t > n:
+            if n % p == 0:
+                seq.extend(a[1:p + 1])
+        else:
+            a[t] = a[t - p]
+            db(t + 1, p)
+            for j in range(a[t - p] + 1, k):
+                a[t] = j
+                db(t + 1, t)
+
+    db(1, 1)
+    return seq
+
+
 def default_homography(width: int = 640, height: int = 480, tilt: float = 0.0003,
                        angle: float = 0.05) -> np.ndarray:
     """Projector 800 x 600 -> camera: a slight rotation, scale 0.78 and perspective."""

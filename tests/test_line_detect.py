@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from _line_synth import de_bruijn
 from _real_oracle import read_rgb, real_dir, real_pattern
 from nurbscan.detect import DetectionResult, detect_lines
 
@@ -35,26 +36,6 @@ def test_blank_and_noise_images_give_an_empty_result_with_warnings():
 
 # ---------------------------------------------------------------- synthetic photographs
 
-def _de_bruijn(k: int, n: int) -> list[int]:
-    """De Bruijn sequence B(k, n) (the standard recursive Lyndon-word construction)."""
-    a = [0] * k * n
-    seq: list[int] = []
-
-    def db(t, p):
-        if t > n:
-            if n % p == 0:
-                seq.extend(a[1:p + 1])
-        else:
-            a[t] = a[t - p]
-            db(t + 1, p)
-            for j in range(a[t - p] + 1, k):
-                a[t] = j
-                db(t + 1, t)
-
-    db(1, 1)
-    return seq
-
-
 def _three_colour_pattern():
     """A pattern unlike the real one: 3 colours per direction (order 3, window 3), other
     pitches and widths, vertical and horizontal palettes interleaved differently."""
@@ -62,7 +43,7 @@ def _three_colour_pattern():
 
     colours = (("red", (255, 0, 0)), ("green", (0, 255, 0)), ("blue", (0, 0, 255)),
                ("yellow", (255, 255, 0)), ("cyan", (0, 255, 255)), ("magenta", (255, 0, 255)))
-    seq = _de_bruijn(3, 3)  # 27 symbols
+    seq = de_bruijn(3, 3)  # 27 symbols
     v = seq[:26]
     h = seq[1:27]
 

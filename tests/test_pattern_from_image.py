@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
+from _line_synth import de_bruijn
 from nurbscan.cli import main
 from nurbscan.errors import NurbscanError
 from nurbscan.io import write_image
@@ -31,26 +32,6 @@ def brute_window_length(seqs, max_n=6):
                for s in seqs):
             return n
     return None
-
-
-def de_bruijn_ruskey(k, n):
-    """B(k, n) by the Fredricksen-Kessler-Maiorana (Lyndon word) algorithm, cyclic."""
-    a = [0] * k * n
-    out = []
-
-    def db(t, p):
-        if t > n:
-            if n % p == 0:
-                out.extend(a[1:p + 1])
-        else:
-            a[t] = a[t - p]
-            db(t + 1, p)
-            for j in range(a[t - p] + 1, k):
-                a[t] = j
-                db(t + 1, t)
-
-    db(1, 1)
-    return out
 
 
 def procam_sequence():
@@ -76,7 +57,7 @@ def foreign_image(over="horizontal", width=400, height=300):
     """A foreign grid painted line by line: 3 px lines, 8 colours (4 per direction),
     vertical pitch 29 and horizontal pitch 21, one direction drawn over the other."""
     rgb = {k: np.round(255 * np.array(v)).astype(np.uint8) for k, v in PROCAM.items()}
-    seq = de_bruijn_ruskey(4, 3)
+    seq = de_bruijn(4, 3)
     vsym, hsym = "ygbm", "rlcp"
     vcentres = list(range(14, width - 2, 29))
     hcentres = list(range(9, height - 2, 21))
