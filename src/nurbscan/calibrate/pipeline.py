@@ -208,6 +208,19 @@ def _edge_sign(det) -> np.ndarray:
     return np.where(e == 2, 0.0, 2.0 * e - 1.0)
 
 
+def oriented_corners(corners: np.ndarray, target: Target) -> np.ndarray:
+    """Detected inner corners (N, 2) in the board's physical order: board y down the image.
+
+    OpenCV's chessboard finder may return an (even + even) board's corners from either end;
+    such a board looks the same turned by 180 degrees, so the order with the board's y axis
+    pointing down the image is taken (the physical orientation of a board standing upright).
+    """
+    col = corners[(target.rows - 1) * target.cols] - corners[0]
+    if col[1] < 0 and (target.cols + target.rows) % 2 == 0:
+        return corners[::-1].copy()
+    return corners
+
+
 def edge_observations(det, kc, rvec, tvec, target: Target, view: int, dc,
                       max_points: int, keep_off_edges_mm: float = 2.0,
                       rng: np.random.Generator | None = None,
@@ -484,10 +497,7 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
             warnings.warn(msg, UserWarning, stacklevel=2)
             warn_list.append(msg)
             continue
-        # board y down the image: the physical orientation of an (even + even) board
-        col = c[(target.rows - 1) * target.cols] - c[0]
-        if col[1] < 0 and (target.cols + target.rows) % 2 == 0:
-            c = c[::-1].copy()
+        c = oriented_corners(c, target)
         names.append(str(p.get("white")))
         kinds.append(str(p.get("kind", "free")))
         angles.append(p.get("table_angle"))
