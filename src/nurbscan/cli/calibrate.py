@@ -49,6 +49,9 @@ def register(sub) -> argparse.ArgumentParser:
     p.add_argument("--require-all", action="store_true",
                    help="refuse a pose whose white-light image shows no target (default: "
                         "leave it out with a warning)")
+    p.add_argument("--allow-outside-paths", action="store_true",
+                   help="accept image paths in scan.json that are absolute or leave the scan "
+                        "folder (refused by default)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
     return p
@@ -67,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
                          camera_pitch=args.camera_pitch, projector_pitch=args.projector_pitch,
                          max_points_per_view=args.max_points, progress=progress,
                          workers=args.workers, require_all=args.require_all,
-                         projector_weight=args.projector_weight)
+                         projector_weight=args.projector_weight,
+                         allow_outside=args.allow_outside_paths)
     paths = write_outputs(res, Path(args.output))
     f = res.figures
     print(f"nurbscan calibrate: wrote {', '.join(str(p) for p in paths)} (camera RMS "

@@ -47,6 +47,9 @@ def register(sub) -> None:
                    help="triangle budget of the fused mesh (300000)")
     p.add_argument("--no-fuse", action="store_true",
                    help="no fused mesh (fused.ply): the per-view patches only")
+    p.add_argument("--allow-outside-paths", action="store_true",
+                   help="accept image paths in scan.json that are absolute or leave the scan "
+                        "folder (refused by default)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 
@@ -87,7 +90,8 @@ def run(args: argparse.Namespace) -> int:
             model = reconstruct_scan(args.scan, rig, progress=say, views=args.views,
                                      min_curves=args.min_curves, workers=args.workers,
                                      overlays=tmp / "overlays", merge=merge,
-                                     fusion=fusion, turntable_calibrated=tt_ok)
+                                     fusion=fusion, turntable_calibrated=tt_ok,
+                                     allow_outside=args.allow_outside_paths)
         if args.quiet:
             for w in model.meta.get("merge", {}).get("warnings", []):
                 print(f"nurbscan reconstruct: warning: {w}", file=sys.stderr, flush=True)
