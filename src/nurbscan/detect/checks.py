@@ -22,8 +22,16 @@ from .families import local_plane
 from .intersections import Intersections
 from .labels import group_median
 from .lines import chain_slope
-from .prepare import Prepared
+from .prepare import NoGrid, Prepared
 from .refine import Lines
+
+#: :func:`check_labels`: lines of at least ``CONFIRM_LENGTH`` points count; with at least
+#: ``CONFIRM_MIN_LINES`` of them, fewer than ``MIN_CONFIRMED`` crossed consistently by a line
+#: of the other family refuse the whole decoding. Simulated teapot views (768 x 576, whole and
+#: random crops): 0.85-0.99 of such lines confirmed when upright; rotated by 90 degrees
+#: 0 (one family decoded, 1-2 % of the labels right), by 270 degrees 0.39-0.46 (0.3-0.6 %
+#: right), mirrored top to bottom 0.40-0.61 (97.5-100 % right, one family).
+CONFIRM_LENGTH, CONFIRM_MIN_LINES, MIN_CONFIRMED = 20, 5, 0.6
 
 #: ``plane_support``'s neighbours and largest distance from the plane's edge (camera px), for
 #: ``plane_radius``.
@@ -43,6 +51,7 @@ def check_lines(lines: Lines, coord: np.ndarray, inter: Intersections, prep: Pre
     counts = np.bincount(line, minlength=nl)
     bad_n = np.bincount(cl[~okc].ravel(), minlength=nl)
     good_n = np.bincount(cl[okc].ravel(), minlength=nl)
+    check_labels(counts, ldir, good_n, prep)
     unconfirmed = good_n == 0  # lines without a consistent intersection
     # and lines left with fewer than min_length points after the point filters
     drop = ((bad_n >= 2) & (bad_n > good_n)) | (counts < min_length)
@@ -122,6 +131,52 @@ def check_lines(lines: Lines, coord: np.ndarray, inter: Intersections, prep: Pre
                     band=inter.band[keep_i], edge=inter.edge[keep_i], line=cl[keep_i],
                     consistent=okc[keep_i], keep=np.ones(int(keep_i.sum()), bool))
     return lines, coord, inter
+
+
+def check_labels(counts: np.ndarray, direction: np.ndarray, confirmed: np.ndarray,
+                 prep: Prepared) -> None:
+    """Refuse a decoding whose labels fail the grid's own consistency as a whole.
+
+    Each label is a claim about a projector band; where a vertical and a horizontal labelled
+    line cross, the crossing's projector point must agree with its neighbours' local map
+    (:func:`~nurbscan.detect.intersections.grid_consistency`). An upright photograph of the
+    grid has most of its long lines confirmed by such a consistent crossing; a photograph
+    rotated by 90 or 270 degrees or mirrored is decoded, when at all, with one family only or
+    with labels that do not cross consistently, and most of them are wrong. Raises
+    :class:`~nurbscan.detect.prepare.NoGrid` (an empty result, with the reason) when at
+    least ``CONFIRM_MIN_LINES`` lines of ``CONFIRM_LENGTH`` points or more are labelled and
+    fewer than ``MIN_CONFIRMED`` of them are confirmed.
+
+    A photograph transposed (rotated by 90 degrees and mirrored) shows a valid grid whose
+    families are swapped; with the same code in both directions its labels are consistent,
+    and nothing in one photograph tells it from an upright one (the rig's epipolar
+    constraint does).
+
+    Parameters
+    ----------
+    counts : (L,) int
+        Points of each line.
+    direction : (L,) int
+        0 vertical-band edge, 1 horizontal-band edge.
+    confirmed : (L,) int
+        Consistent crossings of each line.
+    prep : Prepared
+        The photograph (for its size in the reason).
+    """
+    long = counts >= CONFIRM_LENGTH
+    n = int(long.sum())
+    if n < CONFIRM_MIN_LINES:
+        return
+    share = float(np.mean(confirmed[long] > 0))
+    if share >= MIN_CONFIRMED:
+        return
+    fam = np.bincount(direction[long], minlength=2)
+    only = (f"; only {'vertical' if fam[0] else 'horizontal'}-band edges decoded"
+            if min(fam) == 0 else "")
+    raise NoGrid(f"image: grid labels inconsistent: {share:.0%} of the {n} lines longer than "
+                 f"{CONFIRM_LENGTH} px are confirmed by a consistent crossing of the other "
+                 f"family{only} (is the photograph rotated or mirrored? the projector's "
+                 "vertical bands must appear upright)", prep.size)
 
 
 def row_support(x: np.ndarray, y: np.ndarray, direction: np.ndarray, coord: np.ndarray,

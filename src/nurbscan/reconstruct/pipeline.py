@@ -27,6 +27,7 @@ from ..merge.frame import curve_to_object, rig_to_object, surface_to_object
 from ..pattern import LinePattern
 from .light import compare_light_surfaces, other_coordinate
 from .model import Model
+from .sanity import check_model, check_rig
 from .view import ViewResult, reconstruct_view
 
 
@@ -267,6 +268,7 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
     """
     from ..pattern import load_pattern
 
+    check_rig(rig)  # a zero baseline or a folding lens could only give an empty model
     scan = load_scan(scan_dir, allow_outside=allow_outside)  # paths inside the folder
     pattern = load_pattern(scan.pattern_sidecar)
     size = scan.image_size
@@ -310,6 +312,7 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
         if "light_surface" not in model.meta and res.lines:
             model.meta["light_surface"] = light_surface_check(res, rig)
         add_view(model, res, rig, job["index"], job["angle"], t, frame=frame)
+    check_model(model, str(scan.folder / "scan.json"))  # no line in any view: refused
     if merge is not None and frame is None:  # no table plane nor axis in the rig frame
         t_merge = time.perf_counter()
         merge_views(model, rig.turntable, merge, progress)
