@@ -47,7 +47,9 @@ def _model(n: int = 5, value: float = 1.0) -> Model:
 
 
 def _one_line(capsys, *words: str) -> str:
-    err = capsys.readouterr().err.strip().splitlines()
+    text = capsys.readouterr().err
+    assert "Traceback" not in text, text
+    err = [e for e in text.strip().splitlines() if not e.startswith("[")]  # not progress
     assert len(err) == 1, err
     assert "Traceback" not in err[0]
     for w in words:
@@ -457,3 +459,21 @@ def test_export_name_and_format_disagree_and_simulate_zero_size(tmp_path, capsys
         assert main(["simulate", "teapot", "-o", str(tmp_path / "s"), opt, "0"]) == 2
         _one_line(capsys, f"{opt} 0")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m"]
+
+
+def test_bad_truth_npz_is_one_line(small_scan, tmp_path, capsys):
+    from nurbscan.detect import evaluate_detection
+    from nurbscan.detect.result import DetectionResult
+
+    truth = tmp_path / "truth"
+    shutil.copytree(small_scan / "truth", truth)
+    (truth / "view_01.npz").write_bytes(b"PK\x03\x04 truncated")
+    np.savez(truth / "view_00.npz", surface_id=np.zeros((4, 4), int))
+    out = tmp_path / "m"
+    _model().save(out)
+    assert main(["evaluate", str(out), "--truth", str(truth), "-o",
+                 str(tmp_path / "ev.json")]) == 2
+    _one_line(capsys, "view_0", "not a truth file")
+    assert not (tmp_path / "ev.json").exists()
+    with pytest.raises(NurbscanError, match="no proj_x"):
+        evaluate_detection(DetectionResult.empty((4, 4), ()), truth / "view_00.npz", None)
