@@ -26,12 +26,13 @@ from .prepare import NoGrid, Prepared
 from .refine import Lines
 
 #: :func:`check_labels`: lines of at least ``CONFIRM_LENGTH`` points count; with at least
-#: ``CONFIRM_MIN_LINES`` of them, fewer than ``MIN_CONFIRMED`` crossed consistently by a line
-#: of the other family refuse the whole decoding. Simulated teapot views (768 x 576, whole and
-#: random crops): 0.85-0.99 of such lines confirmed when upright; rotated by 90 degrees
+#: ``CONFIRM_MIN_LINES`` of them, fewer than ``CheckOptions.min_confirmed`` (0.6) crossed
+#: consistently by a line of the other family refuse the whole decoding. Simulated teapot
+#: views (768 x 576, whole and random crops): 0.85-0.99 of such lines confirmed when
+#: upright; rotated by 90 degrees
 #: 0 (one family decoded, 1-2 % of the labels right), by 270 degrees 0.39-0.46 (0.3-0.6 %
 #: right), mirrored top to bottom 0.40-0.61 (97.5-100 % right, one family).
-CONFIRM_LENGTH, CONFIRM_MIN_LINES, MIN_CONFIRMED = 20, 5, 0.6
+CONFIRM_LENGTH, CONFIRM_MIN_LINES = 20, 5
 
 #: ``plane_support``'s neighbours and largest distance from the plane's edge (camera px), for
 #: ``plane_radius``.
@@ -51,7 +52,7 @@ def check_lines(lines: Lines, coord: np.ndarray, inter: Intersections, prep: Pre
     counts = np.bincount(line, minlength=nl)
     bad_n = np.bincount(cl[~okc].ravel(), minlength=nl)
     good_n = np.bincount(cl[okc].ravel(), minlength=nl)
-    check_labels(counts, ldir, good_n, prep)
+    check_labels(counts, ldir, good_n, prep, options.min_confirmed)
     unconfirmed = good_n == 0  # lines without a consistent intersection
     # and lines left with fewer than min_length points after the point filters
     drop = ((bad_n >= 2) & (bad_n > good_n)) | (counts < min_length)
@@ -134,7 +135,7 @@ def check_lines(lines: Lines, coord: np.ndarray, inter: Intersections, prep: Pre
 
 
 def check_labels(counts: np.ndarray, direction: np.ndarray, confirmed: np.ndarray,
-                 prep: Prepared) -> None:
+                 prep: Prepared, min_confirmed: float = 0.6) -> None:
     """Refuse a decoding whose labels fail the grid's own consistency as a whole.
 
     Each label is a claim about a projector band; where a vertical and a horizontal labelled
@@ -145,7 +146,9 @@ def check_labels(counts: np.ndarray, direction: np.ndarray, confirmed: np.ndarra
     with labels that do not cross consistently, and most of them are wrong. Raises
     :class:`~nurbscan.detect.prepare.NoGrid` (an empty result, with the reason) when at
     least ``CONFIRM_MIN_LINES`` lines of ``CONFIRM_LENGTH`` points or more are labelled and
-    fewer than ``MIN_CONFIRMED`` of them are confirmed.
+    fewer than ``min_confirmed`` of them are confirmed (``CheckOptions.min_confirmed``; 0
+    disables: the chessboard squares of the calibration poses cut the lines, and 0-16 % of
+    them are confirmed, their labels right).
 
     A photograph transposed (rotated by 90 degrees and mirrored) shows a valid grid whose
     families are swapped; with the same code in both directions its labels are consistent,
@@ -162,13 +165,15 @@ def check_labels(counts: np.ndarray, direction: np.ndarray, confirmed: np.ndarra
         Consistent crossings of each line.
     prep : Prepared
         The photograph (for its size in the reason).
+    min_confirmed : float
+        Smallest share of confirmed long lines.
     """
     long = counts >= CONFIRM_LENGTH
     n = int(long.sum())
-    if n < CONFIRM_MIN_LINES:
+    if n < CONFIRM_MIN_LINES or min_confirmed <= 0:
         return
     share = float(np.mean(confirmed[long] > 0))
-    if share >= MIN_CONFIRMED:
+    if share >= min_confirmed:
         return
     fam = np.bincount(direction[long], minlength=2)
     only = (f"; only {'vertical' if fam[0] else 'horizontal'}-band edges decoded"

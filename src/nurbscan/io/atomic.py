@@ -313,3 +313,32 @@ def atomic_folder(path: str | os.PathLike,
             if isinstance(exc, OSError):
                 raise _cannot_write(path, exc) from None
             raise
+
+
+@contextlib.contextmanager
+def atomic_path_fixed(path: str | os.PathLike) -> Iterator[Path]:
+    """:func:`atomic_path` with a temporary name that depends only on the target
+    (``.NAME.tmp.SUFFIX``), under the target's lock (:func:`folder_lock`).
+
+    For writers that record the name they write to inside the file (OpenNURBS stores it in a
+    ``.3dm``): two runs writing the same target then give the same bytes. A temporary left
+    by a killed run has the same name and is overwritten by the next.
+    """
+    path = Path(path)
+    with folder_lock(path):
+        tmp = path.parent / f".{path.name}.tmp{path.suffix}"
+        try:
+            if path.is_dir():
+                from ..errors import NurbscanError
+
+                raise NurbscanError(f"{path}: cannot write (it is a folder)")
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+            yield tmp
+            os.replace(tmp, path)
+        except BaseException as exc:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+            if isinstance(exc, OSError):
+                raise _cannot_write(path, exc) from None
+            raise
