@@ -527,3 +527,13 @@ def test_3dm_is_the_same_file_from_run_to_run(tmp_path):
     diff = np.flatnonzero(a != b)
     assert len(diff) <= 8 and (len(diff) == 0 or diff.max() < 512), diff
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m", "m.3dm"]
+
+
+@pytest.mark.parametrize("opt", [["--max-points", "-5"], ["--camera-pitch", "nan"],
+                                 ["--projector-pitch", "-1"], ["--camera-pitch", "inf"]])
+def test_calibrate_absurd_options_are_one_line(tmp_path, capsys, opt):
+    scan = _calibration_folder(tmp_path, _poses())
+    assert main(["calibrate", str(scan / "calibration"), "-o", str(tmp_path / "c.json"),
+                 "-q"] + opt) == 2
+    _one_line(capsys, opt[0])
+    assert not (tmp_path / "c.json").exists()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -65,6 +66,13 @@ def run(args: argparse.Namespace) -> int:
         raise NurbscanError(f"--workers {args.workers}: must be >= 0")
     if not args.projector_weight > 0:
         raise NurbscanError(f"--projector-weight {args.projector_weight}: must be positive")
+    if args.max_points < 1:
+        raise NurbscanError(f"--max-points {args.max_points}: must be at least 1")
+    for name in ("camera_pitch", "projector_pitch"):
+        v = getattr(args, name)
+        if v is not None and not (math.isfinite(v) and v > 0):  # NaN and inf too
+            raise NurbscanError(f"--{name.replace('_', '-')} {v}: must be a positive number "
+                                "of mm")
     progress = None if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     res = calibrate_scan(args.calibration_dir, args.pattern, exclude=tuple(args.exclude),
                          camera_pitch=args.camera_pitch, projector_pitch=args.projector_pitch,
