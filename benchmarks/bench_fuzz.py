@@ -190,12 +190,20 @@ def _detect(args):
 
 
 class _Worker:
+    """One spawned worker process for the detections, replaced when one hangs."""
+
     def __init__(self):
-        ctx = mp.get_context("spawn")
-        self.pool = ctx.Pool(1)
+        # the worker imports this file by its name (run.py loads it under another one)
+        import sys
+
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        import bench_fuzz
+
+        self.fn = bench_fuzz._detect
+        self.pool = mp.get_context("spawn").Pool(1)
 
     def run(self, args, timeout):
-        r = self.pool.apply_async(_detect, (args,))
+        r = self.pool.apply_async(self.fn, (args,))
         try:
             return r.get(timeout)
         except mp.TimeoutError:

@@ -355,8 +355,7 @@ def _concat(obs: list[ProjObs]) -> ProjObs:
 #: the true rig rises from 0.0118 to 0.0137 mm.
 DETECT_OPTIONS = DetectOptions().replace(
     corner_dominance=1.0, fit_rounds=0, new_end_residual=0.0, min_checked_length=0.0,
-    sigma_per_band=8.0, plane_radius=0.0, partner_drops="all", read_along="pixels",
-    min_confirmed=0.0)
+    sigma_per_band=8.0, plane_radius=0.0, partner_drops="all", read_along="pixels")
 
 
 def _is_line_pattern(pattern) -> bool:
