@@ -101,6 +101,14 @@ TARGETS = [
      "calibration (poses 1-8) / camera RMS, camera-only Tsai fit (px)", "<=", 0.16),
     ("real rig: projector reprojection RMS (projector px)", "real_calibrate",
      "calibration (poses 1-8) / projector RMS per decoded coordinate (projector px)", "<=", 0.2),
+    ("fuzzed images through detection: crashes", "fuzz", "crashes", "<=", 0),
+    ("fuzzed images through detection: hangs over 10 s", "fuzz", "hangs_over_10s", "<=", 0),
+    ("fuzzed images: results with more than 1 % of their lines over 20 px wrong", "fuzz",
+     "wrong_results", "<=", 0),
+    ("kill -9 of reconstruct / export: mixed, partial or corrupt outputs", "kill",
+     "bad_outputs", "<=", 0),
+    ("kill -9 of reconstruct / export: leftovers after the next run", "kill", "leftovers",
+     "<=", 0),
 ]
 #: A slope counts as linear within this distance of 1.
 SLOPE_TOL = 0.2
@@ -327,8 +335,10 @@ def main(argv: list[str]) -> int:
             failed = True
             lines += [f"Failed: {res['error']}{when}", ""]
             continue
+        rss = res.get("peak_rss_mb")
         lines += [f"Process: {res['wall_s']:.0f} s wall time, peak memory "
-                  f"{res['peak_rss_mb']:.0f} MB (maximum resident set)"
+                  + (f"{rss:.0f} MB (maximum resident set)" if rss is not None else
+                     "not measured (run on its own, outside run.py)")
                   + (f"; medians of {res['runs']} processes" if res["runs"] > 1 else "")
                   + when, ""]
         lines += render(res["figures"])

@@ -22,6 +22,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 
 import cv2
@@ -162,6 +163,23 @@ class CameraFit:
     corners: CornerObs  # the corners used (gross errors left out)
 
 
+@contextlib.contextmanager
+def single_thread_opencv():
+    """Run OpenCV on one thread inside the block (the previous count restored after).
+
+    :func:`cv2.calibrateCamera` sums its normal equations over OpenCV's worker threads in the
+    order they finish, so its result changed from run to run in the 7th-8th digit (and with
+    it the whole calibration); on one thread it is the same bit for bit. It is called on a
+    few hundred corners: the thread costs nothing measurable.
+    """
+    n = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(n)
+
+
 def opencv_init(corners: list[np.ndarray], board: np.ndarray, size: tuple[int, int],
                 dx: float, dy: float, names: list[str] | None = None):
     """Zhang's method through :func:`cv2.calibrateCamera` (one radial term, no tangential).
@@ -174,7 +192,8 @@ def opencv_init(corners: list[np.ndarray], board: np.ndarray, size: tuple[int, i
     flags = (cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST)
     _check_not_parallel(corners, board, names, size)
     try:
-        _, K, dist, rv, tv = cv2.calibrateCamera(obj, img, size, None, None, flags=flags)
+        with single_thread_opencv():  # bit-identical from run to run
+            _, K, dist, rv, tv = cv2.calibrateCamera(obj, img, size, None, None, flags=flags)
     except cv2.error as exc:
         raise NurbscanError(f"calibration: OpenCV initialisation failed ({exc.msg})") from None
     kc = tsai_from_opencv(K, dist, dx, dy)

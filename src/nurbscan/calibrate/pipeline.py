@@ -36,7 +36,7 @@ import numpy as np
 from .._parallel import process_map
 from ..detect.options import DetectOptions
 from ..errors import NurbscanError
-from ..io import chroma_subsampled, read_image
+from ..io import chroma_subsampled, load_scan, read_image
 from ..io.atomic import read_json
 from ._bundle import (
     BundleState,
@@ -380,6 +380,14 @@ def _is_line_pattern(pattern) -> bool:
     return isinstance(pattern, LinePattern)
 
 
+def _relative(path: Path, root: Path) -> str:
+    """``path`` as scan.json names it: relative to the scan folder when inside it."""
+    try:
+        return path.relative_to(root.resolve()).as_posix()
+    except ValueError:
+        return str(path)
+
+
 def _read_pose(job) -> tuple[tuple[int, int], np.ndarray | None, Any, np.ndarray | None]:
     """One pose's image size ``(W, H)``, chessboard corners (None: not found), decoded grid
     (None when the board is not found) and, for a printed target, the mask of the board's
@@ -418,7 +426,8 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
                    progress: Callable[[str], None] | None = None,
                    workers: int = 1, require_all: bool = False,
                    pose_cache: dict | None = None,
-                   projector_weight: float = 1.0) -> CalibrationResult:
+                   projector_weight: float = 1.0,
+                   allow_outside: bool = False) -> CalibrationResult:
     """Calibrate camera, projector and turntable from a scan's calibration images.
 
     Parameters
@@ -443,6 +452,9 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
     require_all : bool
         Refuse (:class:`NurbscanError` naming the file) a pose whose white-light image shows
         no target, instead of leaving it out with a warning.
+    allow_outside : bool
+        Accept pose paths in ``scan.json`` that are absolute or leave the scan folder
+        (:func:`nurbscan.io.load_scan`; refused by default).
     pose_cache : dict, optional
         The caller's store of what was read from each pose's images (corners, decoded grid,
         white area), keyed by the image paths: filled on the first call and reused by later
@@ -461,6 +473,8 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
         raise NurbscanError(f"{calib_dir}: calibration folder not found")
     doc = read_scan_json(calib_dir)
     root = Path(doc["_root"])
+    # the poses' paths resolved inside the scan folder, the fields checked
+    scan = load_scan(root, allow_outside=allow_outside)
     cal = doc.get("calibration")
     if not isinstance(cal, dict) or "target" not in cal or "poses" not in cal:
         raise NurbscanError(f"{doc['_path']}: no 'calibration' section with target and poses")
@@ -469,7 +483,10 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
         pattern = root / "pattern.json"
     if not isinstance(pattern, Pattern):
         pattern = load_pattern(pattern)
-    poses = [p for p in cal["poses"] if int(p.get("index", -1)) not in set(exclude)]
+    for q in scan.poses:
+        if q.grid is None:
+            raise NurbscanError(f"{doc['_path']}: calibration.poses[{q.index}]: missing 'grid'")
+    poses = [q for q in scan.poses if q.index not in set(exclude)]
     if len(poses) < MIN_VIEWS:
         raise NurbscanError(f"{doc['_path']}: {len(poses)} calibration poses; at least "
                             f"{MIN_VIEWS} are needed")
@@ -477,7 +494,7 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
     warn_list: list[str] = []
     names, kinds, angles, corners, dets, areas = [], [], [], [], [], []
     size = None
-    jobs = [(root / p["white"], root / p["grid"], pattern, target, require_all) for p in poses]
+    jobs = [(p.white, p.grid, pattern, target, require_all) for p in poses]
 
     def seen(i: int, res) -> None:
         _say(progress, f"[{time.perf_counter() - t0:6.1f} s] {todo[i][1].name}: "
@@ -489,20 +506,26 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
     for j, r in zip(todo, process_map(_read_pose, todo, workers, done=seen), strict=True):
         cache[(str(j[0]), str(j[1]))] = r
     for p, j in zip(poses, jobs, strict=True):
+        shape = cache[(str(j[0]), str(j[1]))][0]
+        if tuple(shape) != scan.image_size:  # one camera, one image size
+            raise NurbscanError(f"{p.white}: {shape[0]} x {shape[1]} px, but the scan's images "
+                                f"are {scan.image_size[0]} x {scan.image_size[1]} "
+                                f"({doc['_path']} image_size)")
+    for p, j in zip(poses, jobs, strict=True):
         shape, c, det, area = cache[(str(j[0]), str(j[1]))]
         size = size or shape
         if c is None:
-            missing.append(str(root / p["white"]))
-            msg = f"{root / p['white']}: calibration target not found; pose left out"
+            missing.append(str(p.white))
+            msg = f"{p.white}: calibration target not found; pose left out"
             warnings.warn(msg, UserWarning, stacklevel=2)
             warn_list.append(msg)
             continue
         c = oriented_corners(c, target)
-        names.append(str(p.get("white")))
-        kinds.append(str(p.get("kind", "free")))
-        angles.append(p.get("table_angle"))
+        names.append(_relative(p.white, root))
+        kinds.append(p.kind)
+        angles.append(p.table_angle)
         corners.append(c)
-        dets.append((root / p["grid"], det))
+        dets.append((p.grid, det))
         areas.append(area)
     if len(corners) < MIN_VIEWS:
         nf = f" (not found in {', '.join(missing)})" if missing else ""

@@ -26,7 +26,7 @@ import numpy as np
 from ..errors import NurbscanError
 from ._bundle import ProjObs, plane_points
 from ._tsai import rotmats, rotvecs
-from .camera import tsai_from_opencv
+from .camera import single_thread_opencv, tsai_from_opencv
 
 
 def _normaliser(pts: np.ndarray) -> np.ndarray:
@@ -124,8 +124,9 @@ def init_projector(kc, rvecs, tvecs, obs: ProjObs, dc, dp, size: tuple[int, int]
             f"projector calibration: the grid was decoded in {len(views)} target view(s); "
             "at least 3 are needed")
     flags = cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST
-    _, K, dist, rv, tv = cv2.calibrateCamera(objs, imgs, tuple(int(s) for s in size), None,
-                                             None, flags=flags)
+    with single_thread_opencv():  # bit-identical from run to run
+        _, K, dist, rv, tv = cv2.calibrateCamera(objs, imgs, tuple(int(s) for s in size), None,
+                                                 None, flags=flags)
     kp = tsai_from_opencv(K, dist, *dp)
     Rb = rotmats(np.array(rv, float).reshape(-1, 3))  # board -> projector
     Rc = rotmats(rvecs[views])  # board -> camera

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -49,6 +50,9 @@ def register(sub) -> argparse.ArgumentParser:
     p.add_argument("--require-all", action="store_true",
                    help="refuse a pose whose white-light image shows no target (default: "
                         "leave it out with a warning)")
+    p.add_argument("--allow-outside-paths", action="store_true",
+                   help="accept image paths in scan.json that are absolute or leave the scan "
+                        "folder (refused by default)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
     return p
@@ -62,12 +66,20 @@ def run(args: argparse.Namespace) -> int:
         raise NurbscanError(f"--workers {args.workers}: must be >= 0")
     if not args.projector_weight > 0:
         raise NurbscanError(f"--projector-weight {args.projector_weight}: must be positive")
+    if args.max_points < 1:
+        raise NurbscanError(f"--max-points {args.max_points}: must be at least 1")
+    for name in ("camera_pitch", "projector_pitch"):
+        v = getattr(args, name)
+        if v is not None and not (math.isfinite(v) and v > 0):  # NaN and inf too
+            raise NurbscanError(f"--{name.replace('_', '-')} {v}: must be a positive number "
+                                "of mm")
     progress = None if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     res = calibrate_scan(args.calibration_dir, args.pattern, exclude=tuple(args.exclude),
                          camera_pitch=args.camera_pitch, projector_pitch=args.projector_pitch,
                          max_points_per_view=args.max_points, progress=progress,
                          workers=args.workers, require_all=args.require_all,
-                         projector_weight=args.projector_weight)
+                         projector_weight=args.projector_weight,
+                         allow_outside=args.allow_outside_paths)
     paths = write_outputs(res, Path(args.output))
     f = res.figures
     print(f"nurbscan calibrate: wrote {', '.join(str(p) for p in paths)} (camera RMS "

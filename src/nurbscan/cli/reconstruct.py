@@ -47,6 +47,9 @@ def register(sub) -> None:
                    help="triangle budget of the fused mesh (300000)")
     p.add_argument("--no-fuse", action="store_true",
                    help="no fused mesh (fused.ply): the per-view patches only")
+    p.add_argument("--allow-outside-paths", action="store_true",
+                   help="accept image paths in scan.json that are absolute or leave the scan "
+                        "folder (refused by default)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 
@@ -56,10 +59,11 @@ def run(args: argparse.Namespace) -> int:
     from ..calibrate import turntable_calibrated
     from ..camera import load_rig
     from ..errors import NurbscanError
-    from ..io.atomic import read_json
+    from ..io.atomic import atomic_folder, read_json
     from ..merge import MergeOptions, MergeWarning, RegistrationOptions, TableOptions
     from ..merge.fusion import FusionOptions
     from ..reconstruct import reconstruct_scan
+    from ..reconstruct.model import MODEL_FILES
 
     if args.workers < 0:
         raise NurbscanError(f"--workers {args.workers}: must be >= 0")
@@ -78,17 +82,22 @@ def run(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
-    with warnings.catch_warnings():  # printed below, also with --quiet
-        warnings.simplefilter("ignore", MergeWarning)
-        model = reconstruct_scan(args.scan, rig, progress=say, views=args.views,
-                                 min_curves=args.min_curves, workers=args.workers,
-                                 overlays=Path(args.output) / "overlays", merge=merge,
-                                 fusion=fusion, turntable_calibrated=tt_ok)
-    if args.quiet:
-        for w in model.meta.get("merge", {}).get("warnings", []):
-            print(f"nurbscan reconstruct: warning: {w}", file=sys.stderr, flush=True)
-    model.meta["calibration"] = str(args.calib)
-    path = model.save(args.output)
+    # the model folder is written whole under a temporary name, under its lock: a killed run
+    # leaves the old folder (or none), a second run into the same folder is refused
+    with atomic_folder(args.output, MODEL_FILES) as tmp:
+        with warnings.catch_warnings():  # printed below, also with --quiet
+            warnings.simplefilter("ignore", MergeWarning)
+            model = reconstruct_scan(args.scan, rig, progress=say, views=args.views,
+                                     min_curves=args.min_curves, workers=args.workers,
+                                     overlays=tmp / "overlays", merge=merge,
+                                     fusion=fusion, turntable_calibrated=tt_ok,
+                                     allow_outside=args.allow_outside_paths)
+        if args.quiet:
+            for w in model.meta.get("merge", {}).get("warnings", []):
+                print(f"nurbscan reconstruct: warning: {w}", file=sys.stderr, flush=True)
+        model.meta["calibration"] = str(args.calib)
+        model.write_files(tmp)
+    path = Path(args.output) / "model.json"
     n = {k: v for k, v in model.to_dict()["counts"].items()}
     print(f"wrote {path}: {n['gordon']} Gordon patches, "
           f"{n['horizontal_line'] + n['vertical_line']} curves, {len(model.points)} points"

@@ -27,12 +27,14 @@ from .result import DetectionResult
 
 def _load_truth(truth) -> Mapping[str, np.ndarray]:
     if isinstance(truth, str | os.PathLike):
-        try:
-            with np.load(truth) as z:
-                return {k: z[k] for k in ("proj_x", "proj_y", "lit", "surface_id")}
-        except (OSError, KeyError, ValueError) as exc:
-            raise NurbscanError(f"{truth}: not a truth .npz with proj_x, proj_y, lit, "
-                                f"surface_id ({exc})") from None
+        from ..io.npz import read_npz
+
+        z = read_npz(truth, ("proj_x", "proj_y", "lit", "surface_id"), "truth .npz")
+        shapes = {v.shape for v in z.values()}
+        if len(shapes) != 1 or len(next(iter(shapes))) != 2:
+            raise NurbscanError(f"{truth}: not a truth .npz (maps of shapes "
+                                f"{sorted(shapes)})")
+        return z
     return truth
 
 

@@ -466,6 +466,11 @@ class CheckOptions(_Group):
         kept, RMS 0.22 px from a few outliers; coverage 0.7841 -> 0.7942, RMS 0.0429 ->
         0.0437 px without it). Demo views 0-7 with 0.5 / 0: mean coverage 0.8029 / 0.8132, mean RMS
         0.0416 / 0.0421 px, worst view 0.0446 / 0.0449 px, no wrong line over 20 px.
+    refuse_one_family : bool
+        Refuse the whole decoding (an empty result with the reason) when the lines of one
+        family are labelled and not one of the other
+        (:func:`~nurbscan.detect.checks.check_labels`: a view rotated by 90 degrees, 1-2 % of
+        its labels right); False keeps them.
     """
 
     min_row_support: float = 0.1
@@ -474,6 +479,7 @@ class CheckOptions(_Group):
     plane_radius: float = 2.0
     new_end_residual: float = 0.5
     min_checked_length: float = 0.0
+    refuse_one_family: bool = True
 
 
 #: The groups of :class:`DetectOptions`: attribute name -> class.

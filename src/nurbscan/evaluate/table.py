@@ -32,6 +32,7 @@ from scipy.spatial import cKDTree
 from .._parallel import in_background
 from ..errors import NurbscanError
 from ..io.atomic import read_json
+from ..io.npz import read_npz
 
 #: The paper's Table I (real teapot), mm: mean, std, min, max (method.md section 6).
 PAPER = {
@@ -130,9 +131,12 @@ def visible_samples(scene, truth_dir: Path, n: int = 20000, seed: int = 0):
     index = [int(f.stem.split("_")[1]) for f in files]
     seen = np.zeros((len(P), len(files)), bool)
     for k, f in enumerate(files):
-        with np.load(f) as z:
-            sid = z["surface_id"]
-            q = z["point_obj"][sid >= 0]
+        z = read_npz(f, ("surface_id", "point_obj"), "truth file")
+        sid = z["surface_id"]
+        if z["point_obj"].shape != sid.shape + (3,):
+            raise NurbscanError(f"{f}: not a truth file (point_obj {z['point_obj'].shape} "
+                                f"for surface_id {sid.shape})")
+        q = z["point_obj"][sid >= 0]
         if len(q) < 2:
             continue
         tree = cKDTree(q)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NurbscanError
-from ..io.atomic import atomic_path
+from ..io.atomic import atomic_path_fixed
 from ..nurbs import NurbsCurve, NurbsSurface
 
 __all__ = ["to_rhino_curve", "to_rhino_surface", "write_3dm"]
@@ -69,6 +69,14 @@ def to_rhino_surface(s: NurbsSurface):
     return rs
 
 
+def _uuid(name: str):
+    """A fixed identifier for ``name`` (UUID 5 in nurbscan's namespace): OpenNURBS would draw
+    random ones, and two exports of one model would differ."""
+    import uuid
+
+    return uuid.uuid5(uuid.NAMESPACE_URL, f"nurbscan:{name}")
+
+
 def write_3dm(path: str | os.PathLike, curves: Iterable[tuple[str, NurbsCurve]] = (),
               surfaces: Iterable[tuple[str, NurbsSurface]] = (), version: int = 7) -> Path:
     """Write curves and surfaces to a Rhino ``.3dm`` file atomically, one layer per kind.
@@ -91,24 +99,27 @@ def write_3dm(path: str | os.PathLike, curves: Iterable[tuple[str, NurbsCurve]] 
         if name not in layers:
             lay = r.Layer()
             lay.Name = name
+            lay.Id = _uuid(f"layer/{name}")
             layers[name] = f.Layers.Add(lay)
         return layers[name]
 
+    def attributes(name: str, k: int):
+        attr = r.ObjectAttributes()
+        attr.LayerIndex = layer(name)
+        attr.Id = _uuid(f"object/{k}")  # the same file for the same model (not random ids)
+        return attr
+
     n = 0
     for name, c in curves:
-        attr = r.ObjectAttributes()
-        attr.LayerIndex = layer(name)
-        f.Objects.AddCurve(to_rhino_curve(c), attr)
+        f.Objects.AddCurve(to_rhino_curve(c), attributes(name, n))
         n += 1
     for name, s in surfaces:
-        attr = r.ObjectAttributes()
-        attr.LayerIndex = layer(name)
-        f.Objects.AddSurface(to_rhino_surface(s), attr)
+        f.Objects.AddSurface(to_rhino_surface(s), attributes(name, n))
         n += 1
     if n == 0:
         raise NurbscanError("3dm export: nothing to write (no curves or surfaces)")
     path = Path(path)
-    with atomic_path(path) as tmp:
+    with atomic_path_fixed(path) as tmp:  # the name OpenNURBS records: the same every run
         if not f.Write(str(tmp), version):
             raise NurbscanError(f"{path}: rhino3dm failed to write the file")
     return path

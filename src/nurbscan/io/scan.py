@@ -83,13 +83,16 @@ class Scan:
         return self.folder / "calibration"
 
 
-def load_scan(folder: str | os.PathLike) -> Scan:
+def load_scan(folder: str | os.PathLike, allow_outside: bool = False) -> Scan:
     """Read ``scan.json`` of a scan folder, every path resolved inside the folder.
 
     Parameters
     ----------
     folder : path-like
         The scan folder, or its ``scan.json``.
+    allow_outside : bool
+        Accept absolute paths and paths leaving the scan folder (a scan whose images live
+        elsewhere, by the user's choice: ``--allow-outside-paths`` on the command line).
 
     Returns
     -------
@@ -132,6 +135,10 @@ def load_scan(folder: str | os.PathLike) -> Scan:
         raise NurbscanError(f"{src}: not found (a scan folder holds scan.json; "
                             "docs/scan-format.md)")
     doc = read_json(src)
+
+    def inside(value: Any, src: Path, what: str) -> Path:
+        return _inside(root, allow_outside, value, src, what)
+
     if not isinstance(doc, dict) or doc.get("type") != SCAN_TYPE:
         raise NurbscanError(f"{src}: not a nurbscan scan (\"type\": {SCAN_TYPE!r})")
     size = _size(doc.get("image_size"), src)
@@ -145,9 +152,9 @@ def load_scan(folder: str | os.PathLike) -> Scan:
     views = tuple(
         ScanView(index=_index(v, n, src, f"views[{n}]"),
                  table_angle=_angle(v.get("table_angle", 0.0), scale, src, f"views[{n}]"),
-                 grid=_inside(root, _need(v, "grid", src, f"views[{n}]"), src,
+                 grid=inside(_need(v, "grid", src, f"views[{n}]"), src,
                               f"views[{n}].grid"),
-                 white=_inside(root, v["white"], src, f"views[{n}].white")
+                 white=inside(v["white"], src, f"views[{n}].white")
                  if v.get("white") else None)
         for n, v in enumerate(_objects(doc.get("views", []), src, "views")))
     calib = doc.get("calibration", {}) or {}
@@ -155,10 +162,10 @@ def load_scan(folder: str | os.PathLike) -> Scan:
         raise NurbscanError(f"{src}: calibration: expected an object")
     poses = tuple(
         ScanPose(index=_index(p, n, src, f"calibration.poses[{n}]"),
-                 kind=str(p.get("kind", "free")),
-                 white=_inside(root, _need(p, "white", src, f"calibration.poses[{n}]"), src,
+                 kind=_kind(p.get("kind", "free"), src, f"calibration.poses[{n}]"),
+                 white=inside(_need(p, "white", src, f"calibration.poses[{n}]"), src,
                                f"calibration.poses[{n}].white"),
-                 grid=_inside(root, p["grid"], src, f"calibration.poses[{n}].grid")
+                 grid=inside(p["grid"], src, f"calibration.poses[{n}].grid")
                  if p.get("grid") else None,
                  table_angle=_angle(p["table_angle"], scale, src, f"calibration.poses[{n}]")
                  if p.get("table_angle") is not None else None)
@@ -167,25 +174,43 @@ def load_scan(folder: str | os.PathLike) -> Scan:
     if depth not in (8, 16) or isinstance(depth, bool):
         raise NurbscanError(f"{src}: bit_depth {depth!r}: expected 8 or 16")
     return Scan(folder=root, image_size=size, bit_depth=int(depth),
-                pattern_image=_inside(root, pat.get("image", "pattern.png"), src,
+                pattern_image=inside(pat.get("image", "pattern.png"), src,
                                       "pattern.image"),
-                pattern_sidecar=_inside(root, pat.get("sidecar", "pattern.json"), src,
+                pattern_sidecar=inside(pat.get("sidecar", "pattern.json"), src,
                                         "pattern.sidecar"),
-                views=views, target=dict(calib.get("target", {}) or {}), poses=poses,
-                source=dict(doc.get("source", {}) or {}))
+                views=views, target=_object(calib.get("target"), src, "calibration.target"),
+                poses=poses, source=_object(doc.get("source"), src, "source"))
 
 
-def _inside(root: Path, value: Any, src: Path, what: str) -> Path:
-    """``root / value`` resolved, refusing absolute paths and paths leaving ``root``."""
+def _object(value: Any, src: Path, what: str) -> dict:
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise NurbscanError(f"{src}: {what}: expected an object, got {type(value).__name__}")
+    return dict(value)
+
+
+def _kind(value: Any, src: Path, what: str) -> str:
+    if value not in ("free", "turntable"):
+        raise NurbscanError(f"{src}: {what}.kind {value!r}: expected 'free' or 'turntable'")
+    return value
+
+
+def _inside(root: Path, allow: bool, value: Any, src: Path, what: str) -> Path:
+    """``root / value`` resolved, refusing (unless ``allow``) absolute paths and paths leaving
+    ``root``."""
     if not isinstance(value, str) or not value.strip():
         raise NurbscanError(f"{src}: {what}: expected a relative path, got {value!r}")
+    if allow:
+        return (root / value).resolve()
     if (PurePosixPath(value).is_absolute() or PureWindowsPath(value).is_absolute()
             or PureWindowsPath(value).drive):
         raise NurbscanError(f"{src}: {what} {value!r} is absolute; give a path inside the "
-                            "scan folder")
+                            "scan folder (or allow it: --allow-outside-paths)")
     p = (root / value).resolve()
     if p != root and root not in p.parents:
-        raise NurbscanError(f"{src}: {what} {value!r} leaves the scan folder")
+        raise NurbscanError(f"{src}: {what} {value!r} leaves the scan folder (allow it: "
+                            "--allow-outside-paths)")
     return p
 
 

@@ -2,13 +2,16 @@
 ``fused.ply`` (the fused mesh, when built).
 
 The format is specified in docs/model-format.md. Everything is in the object (turntable)
-frame, mm. Every file is written atomically (:mod:`nurbscan.io.atomic`).
+frame, mm. The folder is written as a whole under a temporary name and renamed into place
+(:func:`nurbscan.io.atomic_folder`), under a lock.
 """
 
 from __future__ import annotations
 
+import hashlib
 import io
 import os
+import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,7 +22,7 @@ import numpy as np
 
 from ..errors import NurbscanError
 from ..io import write_json
-from ..io.atomic import atomic_path, read_json
+from ..io.atomic import atomic_folder, atomic_path, read_json
 from ..nurbs import NurbsCurve, NurbsSurface
 
 TYPE = "nurbscan.model"
@@ -27,6 +30,15 @@ VERSION = 1
 CURVE_KINDS = ("horizontal_line", "vertical_line")
 SURFACE_KINDS = ("horizontal_skin", "vertical_skin", "gordon")
 FUSED_FILE = "fused.ply"
+#: What a model folder may hold: its own files, the overlays of ``nurbscan reconstruct`` and
+#: the evaluation ``nurbscan evaluate`` writes beside them. A folder holding anything else is
+#: not replaced by :meth:`Model.save`.
+MODEL_FILES = frozenset({"model.json", "points.npz", "model.png", FUSED_FILE, "overlays",
+                         "evaluation.json", "evaluation.md"})
+#: The arrays of ``points.npz``.
+POINT_ARRAYS = ("points", "normals", "point_view", "edge_points", "edge_view")
+#: Largest ``points.npz`` read, bytes.
+MAX_POINTS_BYTES = 4 << 30
 
 
 @dataclass
@@ -97,11 +109,24 @@ class Model:
         """Inverse of :meth:`to_dict` (the point arrays are left empty)."""
         if not isinstance(d, Mapping) or d.get("type") != TYPE:
             raise NurbscanError(f"{source}: not a nurbscan model (type {TYPE!r})")
+        for key, kind in (("curves", list), ("surfaces", list), ("views", list),
+                          ("meta", Mapping)):
+            if key not in d and key in ("views", "meta"):
+                continue
+            v = d.get(key)
+            if not isinstance(v, kind) or (kind is list
+                                           and not all(isinstance(e, Mapping) for e in v)):
+                raise NurbscanError(f"{source}: {key}: expected "
+                                    f"{'a list of objects' if kind is list else 'an object'}, "
+                                    f"got {type(v).__name__}")
         try:
             curves = [{**c, "curve": NurbsCurve.from_dict(c["curve"])} for c in d["curves"]]
             surfaces = [{**s, "surface": NurbsSurface.from_dict(s["surface"])}
                         for s in d["surfaces"]]
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+            raise NurbscanError(f"{source}: malformed model ({type(exc).__name__}: "
+                                f"{str(exc).splitlines()[0] if str(exc) else ''})") from None
+        except NurbscanError as exc:
             raise NurbscanError(f"{source}: malformed model ({exc})") from None
         for c in curves:
             if c.get("kind") not in CURVE_KINDS:
@@ -117,16 +142,29 @@ class Model:
 
     # ------------------------------------------------------------------ folder
     def save(self, folder: str | os.PathLike) -> Path:
-        """Write ``model.json``, ``points.npz``, ``model.png`` and (with a fused mesh)
-        ``fused.ply`` into ``folder``."""
+        """Write the model folder ``folder`` as a whole (:func:`nurbscan.io.atomic_folder`):
+        ``model.json``, ``points.npz``, ``model.png`` and (with a fused mesh) ``fused.ply``.
+
+        The folder is written under a temporary name and renamed into place, an existing model
+        folder replaced in one step; a second writer of the same folder is refused. Returns
+        the path of ``model.json``.
+        """
+        with atomic_folder(folder, MODEL_FILES) as tmp:
+            self.write_files(tmp)
+        return Path(folder) / "model.json"
+
+    def write_files(self, folder: str | os.PathLike) -> Path:
+        """Write the model's files into an existing folder (the temporary folder of
+        :meth:`save`; ``model.json`` last, with the SHA-256 of ``points.npz``, which
+        :func:`load_model` checks)."""
         folder = Path(folder)
-        folder.mkdir(parents=True, exist_ok=True)
         buf = io.BytesIO()
         np.savez_compressed(buf, points=self.points, normals=self.normals,
                             point_view=self.point_view, edge_points=self.edge_points,
                             edge_view=self.edge_view)
+        data = buf.getvalue()
         with atomic_path(folder / "points.npz") as tmp:
-            tmp.write_bytes(buf.getvalue())
+            tmp.write_bytes(data)
         img = render_picture(self.points, self.normals)
         ok, png = cv2.imencode(".png", img)
         if ok:
@@ -136,28 +174,67 @@ class Model:
             from ..merge.fusion import write_fused
 
             write_fused(folder, self.fused)
-        return write_json(folder / "model.json", self.to_dict(), indent=None)
+        doc = self.to_dict()
+        doc["checksums"] = {"points.npz": "sha256:" + hashlib.sha256(data).hexdigest()}
+        return write_json(folder / "model.json", doc, indent=None)
 
 
 def load_model(folder: str | os.PathLike) -> Model:
-    """Read a model folder (``model.json`` and, if present, ``points.npz``)."""
+    """Read a model folder (``model.json`` and, if present, ``points.npz``).
+
+    ``points.npz`` must match the checksum ``model.json`` records for it (a model folder
+    assembled from two runs is refused), and hold the five arrays with consistent shapes;
+    anything else is a one-line :class:`~nurbscan.errors.NurbscanError`.
+    """
     folder = Path(folder)
     path = folder / "model.json" if folder.is_dir() else folder
     if not path.exists():
         raise NurbscanError(f"{path}: model not found (expected a folder with model.json)")
-    m = Model.from_dict(read_json(path), source=str(path))
+    doc = read_json(path)
+    m = Model.from_dict(doc, source=str(path))
     pts = path.parent / "points.npz"
+    sums = doc.get("checksums", {})
+    if not isinstance(sums, Mapping):
+        raise NurbscanError(f"{path}: checksums: expected an object")
+    want = sums.get("points.npz")
+    if want is not None and not pts.is_file():
+        raise NurbscanError(f"{pts}: missing (model.json lists it)")
     if pts.exists():
-        with np.load(pts) as z:
-            m.points, m.normals = z["points"], z["normals"]
-            m.point_view = z["point_view"]
-            m.edge_points, m.edge_view = z["edge_points"], z["edge_view"]
+        _read_points(m, pts, want)
     summary = m.meta.pop("_fused", None)
     if summary is not None and (path.parent / summary.get("file", FUSED_FILE)).is_file():
         from ..merge.fusion import read_fused
 
         m.fused = read_fused(path.parent / summary.get("file", FUSED_FILE), summary)
     return m
+
+
+def _read_points(m: Model, pts: Path, checksum: str | None) -> None:
+    """Fill ``m``'s point arrays from ``points.npz``, checked (see :func:`load_model`)."""
+    from ..io.atomic import read_bytes
+
+    data = read_bytes(pts, MAX_POINTS_BYTES)
+    if checksum is not None and checksum != "sha256:" + hashlib.sha256(data).hexdigest():
+        raise NurbscanError(f"{pts}: does not match model.json (its checksum differs: the "
+                            "folder mixes files of two runs); reconstruct again")
+    try:
+        with np.load(io.BytesIO(data), allow_pickle=False) as z:
+            arrays = {k: np.asarray(z[k]) for k in POINT_ARRAYS}
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise NurbscanError(f"{pts}: not a model's points.npz ({exc})") from None
+    n, e = len(arrays["points"]), len(arrays["edge_points"])
+    ok = (all(arrays[k].ndim == 2 and arrays[k].shape[1:] == (3,)
+              and arrays[k].dtype.kind == "f" for k in ("points", "normals", "edge_points"))
+          and arrays["normals"].shape[0] == n
+          and all(arrays[k].ndim == 1 and arrays[k].dtype.kind in "iu"
+                  for k in ("point_view", "edge_view"))
+          and arrays["point_view"].shape[0] == n and arrays["edge_view"].shape[0] == e)
+    if not ok:
+        raise NurbscanError(f"{pts}: arrays of the wrong shape or type "
+                            f"({', '.join(f'{k} {a.dtype}{a.shape}' for k, a in arrays.items())})")
+    m.points, m.normals = arrays["points"], arrays["normals"]
+    m.point_view = arrays["point_view"]
+    m.edge_points, m.edge_view = arrays["edge_points"], arrays["edge_view"]
 
 
 def render_picture(points: np.ndarray, normals: np.ndarray, size: int = 480) -> np.ndarray:

@@ -21,13 +21,13 @@ import numpy as np
 from .._parallel import process_map
 from ..detect.options import DetectOptions
 from ..errors import NurbscanError
-from ..io import chroma_subsampled, read_image
-from ..io.atomic import read_json
+from ..io import chroma_subsampled, load_scan, read_image
 from ..merge import DEFAULT_MERGE, MergeOptions, merge_views
 from ..merge.frame import curve_to_object, rig_to_object, surface_to_object
 from ..pattern import LinePattern
 from .light import compare_light_surfaces, other_coordinate
 from .model import Model
+from .sanity import check_model, check_rig
 from .view import ViewResult, reconstruct_view
 
 
@@ -228,7 +228,8 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
                      views: list[int] | None = None, workers: int = 1,
                      overlays: str | os.PathLike | None = None,
                      merge: MergeOptions | None = DEFAULT_MERGE, fusion=None,
-                     turntable_calibrated: bool = True, **view_kwargs) -> Model:
+                     turntable_calibrated: bool = True, allow_outside: bool = False,
+                     **view_kwargs) -> Model:
     """Reconstruct every view of a scan folder and merge them in the object frame.
 
     Parameters
@@ -259,45 +260,40 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
         (:func:`nurbscan.calibrate.turntable_calibrated`): a single view is reconstructed in
         the rig frame (``meta["frame"] = "rig"``); several views are refused
         (:class:`NurbscanError`), they cannot be merged without the table's axis.
+    allow_outside : bool
+        Accept ``scan.json`` paths that are absolute or leave the scan folder
+        (:func:`nurbscan.io.load_scan`; refused by default).
     **view_kwargs
         Passed to :func:`~nurbscan.reconstruct.view.reconstruct_view`.
     """
     from ..pattern import load_pattern
 
-    scan = Path(scan_dir)
-    doc = read_json(scan / "scan.json")
-    if not isinstance(doc, dict) or doc.get("type") != "nurbscan.scan":
-        raise NurbscanError(f"{scan / 'scan.json'}: not a nurbscan scan (type 'nurbscan.scan')")
-    pat = doc.get("pattern", {})
-    pattern = load_pattern(scan / pat.get("sidecar", "pattern.json"))
-    size = tuple(doc.get("image_size", (rig.camera.width, rig.camera.height)))
+    check_rig(rig)  # a zero baseline or a folding lens could only give an empty model
+    scan = load_scan(scan_dir, allow_outside=allow_outside)  # paths inside the folder
+    pattern = load_pattern(scan.pattern_sidecar)
+    size = scan.image_size
     if size != (int(rig.camera.width), int(rig.camera.height)):
         raise NurbscanError(f"calibration: camera size {rig.camera.width} x {rig.camera.height} "
                             f"does not match the scan's images {size[0]} x {size[1]}")
-    unit = doc.get("angle_unit", "radians")
-    model = Model(meta={"source": str(scan), "pattern": pattern.summary()
+    model = Model(meta={"source": str(scan_dir), "pattern": pattern.summary()
                         if hasattr(pattern, "summary") else None})
     t_all = time.perf_counter()
     jobs = []
-    for n, v in enumerate(doc.get("views", [])):
-        idx = int(v.get("index", n))
+    for n, v in enumerate(scan.views):
+        idx = v.index
         if views is not None and idx not in views:
             continue
-        angle = float(v["table_angle"])
-        if unit.startswith("deg"):
-            angle = float(np.radians(angle))
-        jobs.append({"n": n, "index": idx, "angle": angle, "grid": scan / v["grid"],
-                     "white": scan / v["white"] if v.get("white") else None,
-                     "rig": rig, "pattern": pattern, "kwargs": view_kwargs,
+        jobs.append({"n": n, "index": idx, "angle": v.table_angle, "grid": v.grid,
+                     "white": v.white, "rig": rig, "pattern": pattern, "kwargs": view_kwargs,
                      "overlay": None if overlays is None
                      else Path(overlays) / f"view_{idx:02d}_overlay.png"})
-    total = len(doc.get("views", []))
+    total = len(scan.views)
     frame = None
     if not turntable_calibrated:
         if len(jobs) > 1:
             from ..calibrate import TURNTABLE_NOT_CALIBRATED
 
-            raise NurbscanError(f"{scan / 'scan.json'}: {len(jobs)} views cannot be merged, "
+            raise NurbscanError(f"{scan.folder / 'scan.json'}: {len(jobs)} views cannot be merged, "
                                 f"{TURNTABLE_NOT_CALIBRATED}; reconstruct one view (--views K)")
         frame = RigFrame()
         model.meta["frame"] = "rig"
@@ -316,6 +312,7 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
         if "light_surface" not in model.meta and res.lines:
             model.meta["light_surface"] = light_surface_check(res, rig)
         add_view(model, res, rig, job["index"], job["angle"], t, frame=frame)
+    check_model(model, str(scan.folder / "scan.json"))  # no line in any view: refused
     if merge is not None and frame is None:  # no table plane nor axis in the rig frame
         t_merge = time.perf_counter()
         merge_views(model, rig.turntable, merge, progress)

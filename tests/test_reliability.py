@@ -1,0 +1,541 @@
+"""Reliability (issue #34): model folders written whole under a lock, killed runs, concurrent
+writers, malformed inputs and absurd results as one-line errors, deterministic outputs."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nurbscan.cli import main
+from nurbscan.errors import NurbscanError
+from nurbscan.io.atomic import atomic_folder, folder_lock, lock_path, stale_temporaries
+from nurbscan.reconstruct import Model, load_model
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+@pytest.fixture(scope="module")
+def small_scan(tmp_path_factory):
+    """A 768 x 576, 2-view teapot scan with a coarse grid (pitch 32, band 12 projector px)."""
+    from nurbscan.pattern import Pattern
+    from nurbscan.simulate.render import RenderSettings
+    from nurbscan.simulate.rig import default_rig, scale_camera
+    from nurbscan.simulate.scan import simulate_scan
+    from nurbscan.simulate.scenes import make_scene
+
+    out = tmp_path_factory.mktemp("scan") / "scan"
+    rig = scale_camera(default_rig(), 768, 576)
+    simulate_scan(make_scene("teapot"), out, views=2, rig=rig, calibration=False,
+                  settings=RenderSettings(samples=2),
+                  pattern=Pattern.create(1920, 1080, pitch=32, band=12))
+    return out
+
+
+def _model(n: int = 5, value: float = 1.0) -> Model:
+    return Model(views=[{"index": 0}], points=np.full((n, 3), value),
+                 normals=np.ones((n, 3)) / np.sqrt(3), point_view=np.zeros(n, int),
+                 meta={"value": value})
+
+
+def _one_line(capsys, *words: str) -> str:
+    text = capsys.readouterr().err
+    assert "Traceback" not in text, text
+    err = [e for e in text.strip().splitlines() if not e.startswith("[")]  # not progress
+    assert len(err) == 1, err
+    assert "Traceback" not in err[0]
+    for w in words:
+        assert w in err[0], err
+    return err[0]
+
+
+# ---------------------------------------------------------------------- atomic model folder
+def test_failed_save_leaves_the_old_model_folder_as_it_was(tmp_path, monkeypatch):
+    """A save that fails after points.npz was written (model.json not yet) leaves the old
+    folder untouched: never an old model.json beside a new points.npz; no temporaries."""
+    import nurbscan.reconstruct.model as model_mod
+
+    out = tmp_path / "model"
+    _model(5, 1.0).save(out)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def boom(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(model_mod, "write_json", boom)
+    with pytest.raises(NurbscanError, match="No space left"):
+        _model(7, 2.0).save(out)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model"]
+    assert len(load_model(out).points) == 5
+
+
+def test_load_model_refuses_points_of_another_run(tmp_path):
+    """A model.json beside the points.npz of another run (the state a kill between two file
+    renames could leave before) is a one-line error, not a silently mismatched model."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    _model(5, 1.0).save(a)
+    _model(7, 2.0).save(b)
+    shutil.copy(b / "points.npz", a / "points.npz")
+    with pytest.raises(NurbscanError, match="does not match model.json"):
+        load_model(a)
+    (a / "points.npz").write_bytes(b"PK\x03\x04 not a zip")
+    with pytest.raises(NurbscanError, match="points.npz"):
+        load_model(a)
+
+
+def test_bad_points_npz_is_a_one_line_error(tmp_path):
+    """points.npz of the wrong arrays (no checksum to catch it) and model.json of wrong types."""
+    out = tmp_path / "m"
+    _model().save(out)
+    doc = json.loads((out / "model.json").read_text())
+    del doc["checksums"]
+    (out / "model.json").write_text(json.dumps(doc))
+    np.savez(out / "points.npz", points=np.zeros((4, 2)), normals=np.zeros((4, 3)),
+             point_view=np.zeros(4, int), edge_points=np.zeros((0, 3)), edge_view=np.zeros(0))
+    with pytest.raises(NurbscanError, match="wrong shape or type"):
+        load_model(out)
+    np.savez(out / "points.npz", points=np.zeros((4, 3)))
+    with pytest.raises(NurbscanError, match="not a model's points.npz"):
+        load_model(out)
+    (out / "points.npz").unlink()
+    for bad in ({**doc, "curves": 5}, {**doc, "views": "x"}, {**doc, "meta": [1]},
+                {**doc, "surfaces": [{"kind": "gordon", "surface": {"degree_u": "a"}}]},
+                {**doc, "checksums": 3}):
+        (out / "model.json").write_text(json.dumps(bad))
+        with pytest.raises(NurbscanError) as e:
+            load_model(out)
+        assert "\n" not in str(e.value) and "model.json" in str(e.value)
+
+
+def test_save_refuses_to_replace_a_folder_of_other_files(tmp_path):
+    """-o at a folder holding other things is refused, and nothing of it is removed."""
+    docs = tmp_path / "docs"
+    docs.mkdir()
+    (docs / "thesis.tex").write_text("precious")
+    with pytest.raises(NurbscanError, match="thesis.tex"):
+        _model().save(docs)
+    assert (docs / "thesis.tex").read_text() == "precious"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["docs"]
+
+
+def test_second_writer_is_refused_and_a_dead_writers_lock_taken_over(tmp_path):
+    out = tmp_path / "model"
+    with folder_lock(out):
+        with pytest.raises(NurbscanError, match=f"pid {os.getpid()} is writing"):
+            _model().save(out)
+    assert not out.exists() and not lock_path(out).exists()
+    # a lock file and temporaries left by a process killed with -9
+    p = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    lock_path(out).write_text(f"{p.pid}\n")
+    (tmp_path / f".model.tmp-{p.pid}").mkdir()
+    (tmp_path / f".model.tmp-{p.pid}" / "points.npz").write_bytes(b"half")
+    p.kill()
+    p.wait()
+    _model().save(out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model"]
+    assert stale_temporaries(out) == []
+
+
+def test_atomic_folder_onto_a_file_is_a_one_line_error(tmp_path):
+    f = tmp_path / "model"
+    f.write_text("x")
+    with pytest.raises(NurbscanError, match="it is a file"), atomic_folder(f):
+        pass
+    assert f.read_text() == "x"
+
+
+def test_concurrent_reconstruct_is_refused(small_scan, tmp_path, capsys):
+    out = tmp_path / "model"
+    with folder_lock(out):
+        assert main(["reconstruct", str(small_scan), "--calib",
+                     str(small_scan / "truth" / "rig.json"), "-o", str(out), "-q"]) == 2
+    _one_line(capsys, str(out), "is writing this folder")
+    assert not out.exists()
+
+
+def _wait_group_gone(pgid: int, timeout: float = 20.0) -> None:
+    """Wait until no process of group ``pgid`` is left (the workers die with the parent)."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        try:
+            os.killpg(pgid, 0)
+        except ProcessLookupError:
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"processes of group {pgid} still alive {timeout} s after the kill")
+
+
+def reconstruct_command(scan: Path, out: Path) -> list[str]:
+    """The reconstruction the kill tests interrupt: two views in two workers, no fused mesh."""
+    return [sys.executable, "-m", "nurbscan", "reconstruct", str(scan), "--calib",
+            str(scan / "truth" / "rig.json"), "-o", str(out), "--views", "0", "1",
+            "--no-fuse", "-q", "--workers", "2"]
+
+
+def check_model_folder(out: Path, reference: Model | None) -> str:
+    """``"absent"``, ``"complete"`` (loads, its arrays those of ``reference``); raises if the
+    folder is anything else (partial, mixed, corrupt)."""
+    if not out.exists():
+        return "absent"
+    names = {p.name for p in out.iterdir()}
+    assert {"model.json", "points.npz", "model.png", "overlays"} <= names, names
+    m = load_model(out)  # the checksum ties points.npz to model.json
+    assert len(list((out / "overlays").iterdir())) == len(m.views)
+    if reference is not None:
+        assert np.array_equal(m.points, reference.points)
+        assert len(m.surfaces) == len(reference.surfaces)
+    return "complete"
+
+
+def test_kill_9_during_reconstruct_never_leaves_a_mixed_model(small_scan, tmp_path):
+    """kill -9 at several moments of `nurbscan reconstruct` (spread over a run's time, the
+    last ones in its save): the model folder is each time absent or a complete model equal
+    to an uninterrupted run's; the next run leaves no temporaries or lock."""
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    out = tmp_path / "model"
+    t0 = time.monotonic()
+    subprocess.run(reconstruct_command(small_scan, out), env=env, check=True,
+                   capture_output=True)
+    full = time.monotonic() - t0
+    reference = load_model(out)
+    shutil.rmtree(out)
+    states = []
+    for frac in (0.35, 0.7, 0.9, 0.97, 1.03):
+        p = subprocess.Popen(reconstruct_command(small_scan, out), env=env,
+                             start_new_session=True, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)
+        try:
+            p.wait(timeout=frac * full)
+        except subprocess.TimeoutExpired:
+            os.kill(p.pid, signal.SIGKILL)
+            p.wait()
+        _wait_group_gone(p.pid)
+        states.append(check_model_folder(out, reference))
+    assert p.returncode is not None
+    subprocess.run(reconstruct_command(small_scan, out), env=env, check=True,
+                   capture_output=True)
+    assert check_model_folder(out, reference) == "complete"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model"], states
+
+
+# ---------------------------------------------------------------------- rotated photographs
+def _orient(a: np.ndarray, k: int, flip: bool) -> np.ndarray:
+    a = np.rot90(a, k)
+    return np.ascontiguousarray(a[:, ::-1] if flip else a)
+
+
+def _oriented_detection(scan: Path, k: int, flip: bool, crop: int):
+    """Detect view 0 of ``scan`` rotated by ``k`` quarter turns (then mirrored left to right
+    with ``flip``), whole (``crop`` 0) or a seeded random crop of at least 40 % per side;
+    returns the detection and its evaluation against the truth turned the same way."""
+    import warnings
+
+    from nurbscan.detect import detect_grid, evaluate_detection
+    from nurbscan.io import read_image
+    from nurbscan.pattern import load_pattern
+
+    pat = load_pattern(scan / "pattern.json")
+    g = read_image(scan / "views" / "view_00_grid.png", as_float=False)
+    w = read_image(scan / "views" / "view_00_white.png", as_float=False)
+    with np.load(scan / "truth" / "view_00.npz") as z:
+        truth = {n: z[n] for n in ("proj_x", "proj_y", "lit", "surface_id")}
+    H, W = g.shape[:2]
+    sl = (slice(None), slice(None))
+    if crop:
+        rng = np.random.default_rng(100 * k + 10 * flip + crop)
+        h, ww = int(rng.integers(0.4 * H, H)), int(rng.integers(0.4 * W, W))
+        y0, x0 = int(rng.integers(0, H - h + 1)), int(rng.integers(0, W - ww + 1))
+        sl = (slice(y0, y0 + h), slice(x0, x0 + ww))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        det = detect_grid(_orient(g[sl], k, flip), pat, _orient(w[sl], k, flip))
+    ev = evaluate_detection(det, {n: _orient(v[sl], k, flip) for n, v in truth.items()}, pat)
+    return det, ev
+
+
+@pytest.mark.parametrize("k,flip", [(k, f) for k in range(4) for f in (False, True)
+                                    if k != 3])
+def test_rotated_or_mirrored_grid_is_refused_or_right(small_scan, k, flip):
+    """A view rotated by 0/90/180 degrees, or mirrored, whole and cropped: the detection is
+    refused (empty, with the reason) or at most 1 % of its lines (over 20 px) are labelled
+    wrongly; upright it decodes (today's code: rotated by 90 degrees, 79 of 316 lines wrong,
+    label rate 1.7 %, no warning)."""
+    for crop in (0, 1):
+        det, ev = _oriented_detection(small_scan, k, flip, crop)
+        if det.nlines == 0:
+            assert k or flip, "the upright view must decode"
+            assert det.warnings and "\n" not in det.warnings[0]
+            continue
+        assert ev["wrong_lines_over_20px"] <= 0.01 * det.nlines, (k, flip, crop, ev)
+        if not (k or flip):
+            assert ev["label_rate"] > 0.99 and det.nlines > 300
+
+
+@pytest.mark.xfail(strict=True, reason="not done: rotated by 270 degrees, a few lines of the "
+                   "family read backwards decode (16-24 of ~300) and the other family's "
+                   "labels are those of the first's bands; transposed (270 degrees and "
+                   "mirrored), a valid grid with its families swapped, self-consistent with "
+                   "the same code in both directions (checks.check_labels)")
+@pytest.mark.parametrize("flip", [False, True])
+def test_grid_rotated_270_is_refused_or_right(small_scan, flip):
+    det, ev = _oriented_detection(small_scan, 3, flip, 0)
+    assert det.nlines == 0 or ev["wrong_lines_over_20px"] <= 0.01 * det.nlines, ev
+
+
+# ---------------------------------------------------------------------- scan.json
+def _scan_doc(**extra) -> dict:
+    return {"type": "nurbscan.scan", "version": 1, "image_size": [80, 60],
+            "angle_unit": "radians", "pattern": {"sidecar": "pattern.json"},
+            "views": [{"index": 0, "table_angle": 0.0, "grid": "views/v0.png"}], **extra}
+
+
+def _calibration_folder(tmp_path: Path, poses: list[dict], sizes=None) -> Path:
+    """A scan folder with a calibration section and blank pose images (no target)."""
+    import cv2
+
+    from nurbscan.pattern import Pattern
+
+    scan = tmp_path / "scan"
+    (scan / "calibration").mkdir(parents=True)
+    Pattern.create(320, 240, pitch=16, band=6).save(scan / "pattern.png")
+    for k, p in enumerate(poses):
+        w, h = (sizes or {}).get(k, (80, 60))
+        for key in ("white", "grid"):
+            f = scan / p[key]
+            if ".." not in p[key] and not Path(p[key]).is_absolute():
+                cv2.imwrite(str(f), np.full((h, w, 3), 128, np.uint8))
+    doc = _scan_doc(calibration={"target": {"inner_corners": [7, 5], "square_mm": 10.0},
+                                 "poses": poses})
+    (scan / "scan.json").write_text(json.dumps(doc))
+    return scan
+
+
+def _poses(n: int = 4) -> list[dict]:
+    return [{"index": k, "kind": "free", "white": f"calibration/p{k}_white.png",
+             "grid": f"calibration/p{k}_grid.png"} for k in range(n)]
+
+
+def test_calibrate_refuses_paths_leaving_the_scan_folder(tmp_path, capsys):
+    secret = tmp_path / "secret.png"
+    secret.write_bytes(b"x")
+    for bad in ("../secret.png", str(secret)):
+        poses = _poses()
+        poses[2]["white"] = bad
+        scan = _calibration_folder(tmp_path / bad.replace("/", "_"), poses)
+        assert main(["calibrate", str(scan / "calibration"), "-o",
+                     str(tmp_path / "calib.json"), "-q"]) == 2
+        _one_line(capsys, "scan.json", "calibration.poses[2].white",
+                  "leaves the scan folder" if bad.startswith("..") else "is absolute")
+        assert not (tmp_path / "calib.json").exists()
+
+
+def test_calibrate_refuses_poses_of_another_image_size(tmp_path, capsys):
+    """One pose's images 64 x 48 px in a scan of 80 x 60 (today: a rig of the first pose's
+    size, RMS 7.2 px, exit 0)."""
+    scan = _calibration_folder(tmp_path, _poses(), sizes={3: (64, 48)})
+    assert main(["calibrate", str(scan / "calibration"), "-o", str(tmp_path / "calib.json"),
+                 "-q", "--workers", "1"]) == 2
+    _one_line(capsys, "p3_white.png", "64 x 48 px", "80 x 60")
+    assert not (tmp_path / "calib.json").exists()
+
+
+def test_reconstruct_refuses_paths_leaving_the_scan_folder(small_scan, tmp_path, capsys):
+    scan = tmp_path / "scan"
+    shutil.copytree(small_scan, scan, ignore=shutil.ignore_patterns("truth"))
+    doc = json.loads((scan / "scan.json").read_text())
+    rig = str(small_scan / "truth" / "rig.json")
+    for bad in ("../../../../etc/passwd", "/etc/passwd", str(small_scan / "views" /
+                                                            "view_00_grid.png")):
+        d = json.loads(json.dumps(doc))
+        d["views"][0]["grid"] = bad
+        (scan / "scan.json").write_text(json.dumps(d))
+        assert main(["reconstruct", str(scan), "--calib", rig, "-o", str(tmp_path / "m"),
+                     "-q"]) == 2
+        _one_line(capsys, "scan.json", "views[0].grid")
+        assert not (tmp_path / "m").exists()
+    from nurbscan.io import load_scan
+
+    s = load_scan(scan, allow_outside=True)
+    assert s.views[0].grid == small_scan / "views" / "view_00_grid.png"
+
+
+@pytest.mark.parametrize("change", [
+    {"views": 5}, {"views": [3]}, {"views": [{"index": 0}]},
+    {"views": [{"index": "a", "grid": "v.png"}]},
+    {"views": [{"index": 0, "grid": "v.png", "table_angle": "north"}]},
+    {"views": [{"index": 0, "grid": 7}]}, {"image_size": [800]}, {"image_size": "big"},
+    {"image_size": [True, 3]}, {"angle_unit": "gradians"}, {"pattern": [1]},
+    {"calibration": 3}, {"calibration": {"poses": [{"white": "a.png", "kind": "sideways"}]}},
+    {"calibration": {"target": [7, 5], "poses": []}}, {"source": "me"}, {"bit_depth": 12},
+    {"type": "nurbscan.model"}])
+def test_malformed_scan_json_is_one_line(tmp_path, capsys, change):
+    scan = tmp_path / "scan"
+    scan.mkdir()
+    (scan / "scan.json").write_text(json.dumps({**_scan_doc(), **change}))
+    rig = tmp_path / "calib.json"
+    from nurbscan.simulate.rig import default_rig
+
+    default_rig().save(rig)
+    assert main(["reconstruct", str(scan), "--calib", str(rig), "-o", str(tmp_path / "m"),
+                 "-q"]) == 2
+    _one_line(capsys, "scan.json")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["calib.json", "scan"]
+
+
+def test_deeply_nested_scan_json_is_one_line(tmp_path, capsys):
+    scan = tmp_path / "scan"
+    scan.mkdir()
+    (scan / "scan.json").write_text("[" * 100_000 + "]" * 100_000)
+    from nurbscan.simulate.rig import default_rig
+
+    default_rig().save(tmp_path / "calib.json")
+    assert main(["reconstruct", str(scan), "--calib", str(tmp_path / "calib.json"), "-o",
+                 str(tmp_path / "m"), "-q"]) == 2
+    _one_line(capsys, "scan.json", "nested too deeply")
+
+
+# ---------------------------------------------------------------------- exit 0, wrong result
+def _rig_json(small_scan: Path, tmp_path: Path, name: str, change) -> Path:
+    doc = json.loads((small_scan / "truth" / "rig.json").read_text())
+    change(doc)
+    out = tmp_path / name
+    out.write_text(json.dumps(doc))
+    return out
+
+
+def test_reconstruct_refuses_an_absurd_calibration(small_scan, tmp_path, capsys):
+    """k1 = 1e6 mm^-2, or the projector where the camera is: exit 2 and no model (today: an
+    empty model, exit 0)."""
+    from nurbscan.camera import load_rig
+
+    rig = load_rig(small_scan / "truth" / "rig.json")
+
+    def wild_lens(d):
+        d["camera"]["k1"] = 1e6
+
+    def no_baseline(d):
+        d["projector"]["R"] = d["camera"]["R"]
+        d["projector"]["T"] = d["camera"]["T"]
+
+    assert np.linalg.norm(rig.camera.center - rig.projector.center) > 100
+    for name, change, words in (("k1.json", wild_lens, ("camera k1 = 1e+06",)),
+                                ("base.json", no_baseline, ("baseline",))):
+        calib = _rig_json(small_scan, tmp_path, name, change)
+        out = tmp_path / f"m_{name}"
+        assert main(["reconstruct", str(small_scan), "--calib", str(calib), "-o", str(out),
+                     "-q"]) == 2
+        _one_line(capsys, "calibration", *words)
+        assert not out.exists()
+
+
+def test_reconstruct_with_no_grid_in_any_view_is_refused(small_scan, tmp_path, capsys):
+    import cv2
+
+    scan = tmp_path / "scan"
+    shutil.copytree(small_scan, scan, ignore=shutil.ignore_patterns("truth"))
+    for f in (scan / "views").glob("*_grid.png"):
+        cv2.imwrite(str(f), np.full((576, 768, 3), 40, np.uint8))
+    out = tmp_path / "m"
+    assert main(["reconstruct", str(scan), "--calib", str(small_scan / "truth" / "rig.json"),
+                 "-o", str(out), "-q", "--workers", "1"]) == 2
+    _one_line(capsys, "scan.json", "no grid line decoded in any of the 2 view(s)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scan"]
+
+
+def test_export_name_and_format_disagree_and_simulate_zero_size(tmp_path, capsys):
+    out = tmp_path / "m"
+    _model().save(out)
+    assert main(["export", str(out), "--format", "igs", "-o", str(tmp_path / "m.glb")]) == 2
+    _one_line(capsys, "m.glb", "'igs'")
+    assert not (tmp_path / "m.glb").exists()
+    for opt in ("--height", "--width"):
+        assert main(["simulate", "teapot", "-o", str(tmp_path / "s"), opt, "0"]) == 2
+        _one_line(capsys, f"{opt} 0")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m"]
+
+
+def test_bad_truth_npz_is_one_line(small_scan, tmp_path, capsys):
+    from nurbscan.detect import evaluate_detection
+    from nurbscan.detect.result import DetectionResult
+
+    truth = tmp_path / "truth"
+    shutil.copytree(small_scan / "truth", truth)
+    (truth / "view_01.npz").write_bytes(b"PK\x03\x04 truncated")
+    np.savez(truth / "view_00.npz", surface_id=np.zeros((4, 4), int))
+    out = tmp_path / "m"
+    _model().save(out)
+    assert main(["evaluate", str(out), "--truth", str(truth), "-o",
+                 str(tmp_path / "ev.json")]) == 2
+    _one_line(capsys, "view_0", "not a truth file")
+    assert not (tmp_path / "ev.json").exists()
+    with pytest.raises(NurbscanError, match="no proj_x"):
+        evaluate_detection(DetectionResult.empty((4, 4), ()), truth / "view_00.npz", None)
+
+
+# ---------------------------------------------------------------------- determinism
+def test_opencv_initialisation_is_bit_identical_from_run_to_run():
+    """cv2.calibrateCamera on OpenCV's threads summed in the order they finished: 9 distinct
+    results in 20 calls on the same corners before; one now (and so calibrate's rig is the
+    same bit for bit with one worker)."""
+    from scipy.spatial.transform import Rotation
+
+    from nurbscan.calibrate import board_points
+    from nurbscan.calibrate._tsai import project_local
+    from nurbscan.calibrate.camera import opencv_init
+
+    board = board_points((9, 7), 20.0)
+    kc, dc = np.array([12.5, 1539.3, 1148.6, 1.0, 1.0e-4]), (0.0023, 0.0023)
+    rng = np.random.default_rng(3)
+    corners = []
+    for _ in range(12):
+        R = Rotation.from_euler("xyz", rng.uniform(-25, 25, 3), degrees=True).as_matrix()
+        t = np.array([-80.0, -60.0, 600.0]) + rng.uniform(-30, 30, 3)
+        corners.append(project_local(board @ R.T + t, kc, *dc) + rng.normal(0, 0.05, (63, 2)))
+    outs = {np.concatenate([a.ravel() for a in opencv_init(corners, board, (3072, 2304), *dc)]
+                           ).tobytes() for _ in range(20)}
+    assert len(outs) == 1
+
+
+def test_3dm_is_the_same_file_from_run_to_run(tmp_path):
+    """Two exports of one model to one name differ only in the archive's revision times
+    (was: 2,370 bytes, the random object and layer ids and the temporary file's name)."""
+    from nurbscan.nurbs import NurbsCurve, NurbsSurface
+    from nurbscan.reconstruct._batch import uniform_knots01
+
+    c = NurbsCurve(3, uniform_knots01(1), np.arange(12.0).reshape(4, 3))
+    s = NurbsSurface(1, 1, [0, 0, 1, 1], [0, 0, 1, 1], np.arange(12.0).reshape(2, 2, 3))
+    m = _model()
+    m.curves = [{"kind": "vertical_line", "view": 0, "direction": "vertical", "band": 3,
+                 "edge": 1, "coord": 12.5, "curve": c}]
+    m.surfaces = [{"kind": "gordon", "view": 0, "patch": 0, "vertical": [1, 2],
+                   "horizontal": [3, 4], "n_curves": [2, 2], "surface": s}]
+    m.save(tmp_path / "m")
+    out, runs = tmp_path / "m.3dm", []
+    for _ in range(2):
+        assert main(["export", str(tmp_path / "m"), "-o", str(out), "-q"]) == 0
+        runs.append(np.frombuffer(out.read_bytes(), np.uint8))
+        time.sleep(1.1)  # another second in the revision time
+    a, b = runs
+    assert len(a) == len(b)
+    diff = np.flatnonzero(a != b)
+    assert len(diff) <= 8 and (len(diff) == 0 or diff.max() < 512), diff
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m", "m.3dm"]
+
+
+@pytest.mark.parametrize("opt", [["--max-points", "-5"], ["--camera-pitch", "nan"],
+                                 ["--projector-pitch", "-1"], ["--camera-pitch", "inf"]])
+def test_calibrate_absurd_options_are_one_line(tmp_path, capsys, opt):
+    scan = _calibration_folder(tmp_path, _poses())
+    assert main(["calibrate", str(scan / "calibration"), "-o", str(tmp_path / "c.json"),
+                 "-q"] + opt) == 2
+    _one_line(capsys, opt[0])
+    assert not (tmp_path / "c.json").exists()
