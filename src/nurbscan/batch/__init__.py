@@ -107,7 +107,7 @@ def dask_client(scheduler: str | None = None, workers: int = 2) -> Iterator:
         raise NurbscanError(f"nurbscan batch {NEEDS_DASK}") from None
     if scheduler:
         try:
-            client = Client(scheduler, timeout="20s")
+            client = Client(scheduler, timeout="30s")
         except (OSError, TimeoutError) as exc:
             raise NurbscanError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
         try:
