@@ -184,9 +184,10 @@ def test_cluster_of_processes_with_a_worker_killed(scans, reference, tmp_path, c
     workers = [_dask("worker", addr, "--nthreads", "1", "--nworkers", "1", "--no-dashboard",
                      "--memory-limit", "4GiB", env=env) for _ in range(2)]
     copies = []
-    for k in range(3):
+    for k in range(3):  # each with its own calib.json (per-scan calibration, no --calib)
         c = tmp_path / "scans" / f"copy{k}"
         shutil.copytree(scans["alpha"], c, ignore=shutil.ignore_patterns("truth"))
+        shutil.copy(scans["calib"], c / "calib.json")
         copies.append(c)
     out = tmp_path / "out"
     killed = threading.Event()
@@ -203,8 +204,8 @@ def test_cluster_of_processes_with_a_worker_killed(scans, reference, tmp_path, c
     try:
         killer = threading.Thread(target=kill_one, daemon=True)
         killer.start()
-        rc = main(["batch", *map(str, copies), "-o", str(out), "--calib", str(scans["calib"]),
-                   "--scheduler", addr, "--export", "none", "--no-evaluate"])
+        rc = main(["batch", *map(str, copies), "-o", str(out), "--scheduler", addr,
+                   "--export", "none", "--no-evaluate"])
         killer.join(1)
     finally:
         for p in (*workers, sched):
@@ -216,5 +217,32 @@ def test_cluster_of_processes_with_a_worker_killed(scans, reference, tmp_path, c
     assert f"Dask scheduler {addr}" in err
     summary = json.loads((out / "batch.json").read_text())
     assert [r["status"] for r in summary["scans"]] == ["ok"] * 3
+    assert [r["calibration"] for r in summary["scans"]] == [
+        str((c / "calib.json").resolve()) for c in copies]
     for c in copies:
         assert model_hash(out / c.name / "model") == reference[1]
+
+
+def test_input_errors_are_one_line(scans, tmp_path, capsys, monkeypatch):
+    """Two scans of one name, an unknown export format, a scan without calibration and
+    without calib.json, and no Dask installed: one line each on stderr, exit 2, nothing run."""
+    other = tmp_path / "x" / "alpha"
+    shutil.copytree(scans["alpha"], other, ignore=shutil.ignore_patterns("truth", "views"))
+    out = tmp_path / "out"
+    base = ["batch", "-o", str(out), "--calib", str(scans["calib"])]
+    assert main([*base, str(scans["alpha"]), str(other)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "the same name as" in err[0], err
+    assert main([*base, str(scans["alpha"]), "--export", "glb,step"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--export step: unknown format" in err[0], err
+    # no Dask: the one-line error names what to install
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    assert main([*base, str(scans["alpha"])]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pip install 'nurbscan[batch]'" in err[0], err
+    assert not (out / "alpha").exists()
+    # without --calib, a scan with neither calib.json nor calibration/ fails, reported (serial)
+    assert main(["batch", "-o", str(out), str(scans["blind"]), "--serial", "-q"]) == 1
+    cap = capsys.readouterr()
+    assert "blind: failed: calibration:" in cap.err and "no calib.json" in cap.err, cap.err

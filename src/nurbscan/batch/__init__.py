@@ -97,14 +97,20 @@ def _view_count(job: ScanJob) -> int | TaskError:
     return len(doc["views"])
 
 
+def require_dask():
+    """The ``distributed`` module, or a one-line :class:`NurbscanError` naming the extra."""
+    try:
+        import distributed
+    except ImportError:
+        raise NurbscanError(f"nurbscan batch {NEEDS_DASK}") from None
+    return distributed
+
+
 @contextlib.contextmanager
 def dask_client(scheduler: str | None = None, workers: int = 2) -> Iterator:
     """A ``distributed.Client``: of the cluster at ``scheduler``, or of a ``LocalCluster`` of
     ``workers`` single-threaded worker processes on this machine (closed on exit)."""
-    try:
-        from distributed import Client, LocalCluster
-    except ImportError:
-        raise NurbscanError(f"nurbscan batch {NEEDS_DASK}") from None
+    Client, LocalCluster = require_dask().Client, require_dask().LocalCluster
     if scheduler:
         try:
             client = Client(scheduler, timeout="30s")
@@ -196,6 +202,8 @@ def run_batch(scans: Sequence[str | os.PathLike], out: str | os.PathLike, *,
     options = options or BatchOptions()
     say = progress or (lambda _m: None)
     t0 = time.perf_counter()
+    if not serial:
+        require_dask()
     jobs = scan_jobs(scans, out, calib)
     Path(out).mkdir(parents=True, exist_ok=True)
     reports: dict[str, dict] = {}
@@ -230,8 +238,7 @@ def run_batch(scans: Sequence[str | os.PathLike], out: str | os.PathLike, *,
 
 def _run_dask(todo, options, scheduler, workers, reports, total, say) -> None:
     """Submit every scan's graph and collect the scans as they finish."""
-    from distributed import as_completed
-
+    as_completed = require_dask().as_completed
     with dask_client(scheduler, workers) as client:
         info = client.scheduler_info()
         say(f"Dask scheduler {info.get('address', scheduler)}, "
