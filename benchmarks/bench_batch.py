@@ -111,6 +111,7 @@ def small_batch(root: Path) -> dict:
         wall = time.perf_counter() - t0
         assert s["ok"] == SCANS, s
         runs[mode] = {"wall": wall, "tasks": task_seconds(s), "load": f"{load0} -> {loadavg()}",
+                      "start": s.get("cluster_start_s", 0.0),
                       "hashes": [model_hash(dest / p.name / "model") for p in scans]}
     ser, dk = runs["serial"], runs["dask"]
     t_ser = sum(ser["tasks"].values())
@@ -124,7 +125,10 @@ def small_batch(root: Path) -> dict:
     out[f"LocalCluster({WORKERS}): wall (s)"] = dk["wall"]
     out[f"LocalCluster({WORKERS}): tasks' own time summed (s)"] = t_dk
     out[f"LocalCluster({WORKERS}): load average before -> after"] = dk["load"]
+    out[f"LocalCluster({WORKERS}): of which starting the cluster (s)"] = dk["start"]
     out["wall / (serial tasks' time / 2)"] = dk["wall"] / (t_ser / WORKERS)
+    out["wall less the cluster's start / (serial tasks' time / 2)"] = (
+        (dk["wall"] - dk["start"]) / (t_ser / WORKERS))
     out["wall / (cluster tasks' time / 2)"] = dk["wall"] / (t_dk / WORKERS)
     return out
 

@@ -194,8 +194,8 @@ def run_batch(scans: Sequence[str | os.PathLike], out: str | os.PathLike, *,
     -------
     dict
         ``{"type": "nurbscan.batch", "scans": [scan report, ...], "ok", "partial",
-        "failed", "skipped", "wall_s"}``; each scan report has ``name``, ``status`` (``ok``,
-        ``partial``, ``failed``, ``skipped``) and ``errors``.
+        "failed", "skipped", "wall_s", "cluster_start_s"}``; each scan report has ``name``,
+        ``status`` (``ok``, ``partial``, ``failed``, ``skipped``) and ``errors``.
     """
     from ..io import write_json
 
@@ -208,6 +208,7 @@ def run_batch(scans: Sequence[str | os.PathLike], out: str | os.PathLike, *,
     Path(out).mkdir(parents=True, exist_ok=True)
     reports: dict[str, dict] = {}
     todo = []
+    cluster_s = 0.0
     for job in jobs:
         if is_complete(job.out):
             reports[job.name] = {**read_report(job.out), "status": "skipped", "errors": []}
@@ -226,20 +227,24 @@ def run_batch(scans: Sequence[str | os.PathLike], out: str | os.PathLike, *,
             reports[job.name] = _run_serial(job, n, options)
             say(_line(reports[job.name], len(reports), len(jobs)))
     elif todo:
-        _run_dask(todo, options, scheduler, workers, reports, len(jobs), say)
+        cluster_s = _run_dask(todo, options, scheduler, workers, reports, len(jobs), say)
     summary = {"type": "nurbscan.batch", "version": 1,
                "scans": [reports[j.name] for j in jobs],
                **{s: sum(reports[j.name]["status"] == s for j in jobs)
                   for s in ("ok", "partial", "failed", "skipped")},
-               "wall_s": round(time.perf_counter() - t0, 3)}
+               "wall_s": round(time.perf_counter() - t0, 3),
+               "cluster_start_s": round(cluster_s, 3)}
     write_json(Path(out) / "batch.json", summary)
     return summary
 
 
-def _run_dask(todo, options, scheduler, workers, reports, total, say) -> None:
-    """Submit every scan's graph and collect the scans as they finish."""
+def _run_dask(todo, options, scheduler, workers, reports, total, say) -> float:
+    """Submit every scan's graph and collect the scans as they finish; the seconds it took to
+    start (or reach) the cluster."""
     as_completed = require_dask().as_completed
+    t0 = time.perf_counter()
     with dask_client(scheduler, workers) as client:
+        started = time.perf_counter() - t0
         info = client.scheduler_info()
         say(f"Dask scheduler {info.get('address', scheduler)}, "
             f"{len(info.get('workers', {}))} workers; dashboard {client.dashboard_link}")
@@ -258,6 +263,7 @@ def _run_dask(todo, options, scheduler, workers, reports, total, say) -> None:
             reports[job.name] = rep
             say(_line(rep, len(reports), total))
             fut.release()
+    return started
 
 
 def main_report(summary: dict, out) -> str:
