@@ -14,7 +14,7 @@ def register(sub) -> None:
         "batch", help="Reconstruct, export and evaluate many scans at once (Dask)",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description=(
-            "Reconstruct every scan folder given (as 'nurbscan reconstruct' does, the same "
+            "Reconstruct every scan folder given (as 'nurbscan reconstruct' does, the same\n"
             "model), export it and, where the scan has truth/, evaluate it, with Dask: one\n"
             "task per view and one per scan, on a LocalCluster of --workers processes, or on\n"
             "the cluster whose scheduler is --scheduler (every worker must see the scan and\n"
