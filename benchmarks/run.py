@@ -101,6 +101,10 @@ TARGETS = [
      "calibration (poses 1-8) / camera RMS, camera-only Tsai fit (px)", "<=", 0.16),
     ("real rig: projector reprojection RMS (projector px)", "real_calibrate",
      "calibration (poses 1-8) / projector RMS per decoded coordinate (projector px)", "<=", 0.2),
+    ("batch: 4 scans (1024 x 768, 4 views), LocalCluster of 2: wall / (serial tasks' time / 2)",
+     "batch", "small batch / wall / (serial tasks' time / 2)", "<=", 1.2),
+    ("batch: the same, less the cluster's start-up", "batch",
+     "small batch / wall less the cluster's start / (serial tasks' time / 2)", "<=", 1.2),
 ]
 #: A slope counts as linear within this distance of 1.
 SLOPE_TOL = 0.2
