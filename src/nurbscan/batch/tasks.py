@@ -134,11 +134,14 @@ class TaskError:
 
 @dataclass(frozen=True)
 class Timed:
-    """A task's value (or :class:`TaskError`), its wall time (s) and the host it ran on."""
+    """A task's value (or :class:`TaskError`), its wall time (s), the host it ran on and the
+    CPU time of its process meanwhile (s, all threads; on a machine that others share, the
+    wall time grows with their load, the CPU time much less)."""
 
     value: Any
     seconds: float
     host: str
+    cpu_seconds: float = 0.0
 
     @property
     def ok(self) -> bool:
@@ -158,12 +161,13 @@ def _error(where: str, exc: BaseException) -> TaskError:
 
 def _timed(where: str, fn, *args) -> Timed:
     """Run ``fn(*args)``; its value or its error, timed."""
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         value = fn(*args)
     except Exception as exc:  # noqa: BLE001 - reported per task, the batch goes on
         value = _error(where, exc)
-    return Timed(value, round(time.perf_counter() - t0, 3), socket.gethostname())
+    return Timed(value, round(time.perf_counter() - t0, 3), socket.gethostname(),
+                 round(time.process_time() - c0, 3))
 
 
 # ---------------------------------------------------------------------- 1 calibration
@@ -277,7 +281,7 @@ def _finish(job: ScanJob, options: BatchOptions, calib: Timed, plan: Timed,
     from ..merge import MergeWarning
     from ..reconstruct.pipeline import assemble_scan
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     done = read_report(job.out)
     if done is not None and done.get("run") == job.run:  # this task ran before, its worker died
         return done
@@ -323,6 +327,9 @@ def _finish(job: ScanJob, options: BatchOptions, calib: Timed, plan: Timed,
                                 "coverage": ev["coverage"]}
         times["evaluate_s"] = time.perf_counter() - t0 - sum(times.values())
     report["tasks"]["finish_s"] = round(time.perf_counter() - t0, 3)
+    report["tasks"]["cpu_s"] = {"calibration": calib.cpu_seconds, "plan": plan.cpu_seconds,
+                                "view": [v.cpu_seconds for v in views],
+                                "finish": round(time.process_time() - c0, 3)}
     report["tasks"]["finish_parts_s"] = {k: round(v, 3) for k, v in times.items()}
     write_json(stage / REPORT, report)
     _replace_folder(stage, job.out)
