@@ -109,6 +109,10 @@ TARGETS = [
      "bad_outputs", "<=", 0),
     ("kill -9 of reconstruct / export: leftovers after the next run", "kill", "leftovers",
      "<=", 0),
+    ("batch: 4 scans (1024 x 768, 4 views), LocalCluster of 2: wall / (serial tasks' time / 2)",
+     "batch", "small batch / wall / (serial tasks' time / 2)", "<=", 1.2),
+    ("batch: the same, less the cluster's start-up", "batch",
+     "small batch / wall less the cluster's start / (serial tasks' time / 2)", "<=", 1.2),
 ]
 #: A slope counts as linear within this distance of 1.
 SLOPE_TOL = 0.2

@@ -25,6 +25,7 @@ COMMANDS = (
     "reconstruct",
     "evaluate",
     "export",
+    "batch",
     "report",
     "demo",
 )

@@ -14,7 +14,9 @@ import functools
 import os
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -133,7 +135,7 @@ def _write_overlay(path: Path, image: np.ndarray, det, pattern, width: int = 153
 
 
 #: :func:`~nurbscan.detect.detect_grid` options for reconstruction with a calibrated rig (which
-#: :func:`_view_job` passes as ``epipolar``, :func:`~nurbscan.reconstruct.light.other_coordinate`).
+#: :func:`run_view` passes as ``epipolar``, :func:`~nurbscan.reconstruct.light.other_coordinate`).
 #:
 #: Decode with the rig's epipolar constraint too (``epipolar``), and keep the lines and
 #: points that only the row-support filters would drop (``min_row_support=0``,
@@ -194,33 +196,209 @@ def reconstruct_detection(grid, pattern, white, rig, chroma: bool = False,
                        epipolar=functools.partial(other_coordinate, rig), timings=timings)
 
 
-def _view_job(job: dict):
-    """Read, detect and reconstruct one view: ``(ViewResult, lines, timings)``."""
+@dataclass(frozen=True)
+class ViewTask:
+    """One view's task: which images to read and how to reconstruct them.
 
+    Holds the images' paths, not the images: the process that runs the task reads them (shared
+    storage), so the task is small to send to a worker (a spawned process or a Dask worker).
+
+    Attributes
+    ----------
+    n : int
+        Position of the view in ``scan.json``'s ``views``.
+    index : int
+        The view's index (``views[n].index``).
+    angle : float
+        Table angle, rad.
+    grid, white : Path
+        The grid and white-light photographs (``white`` may be None).
+    rig : Rig
+        The calibrated rig.
+    pattern : Pattern or LinePattern
+        The projected pattern.
+    kwargs : dict
+        Passed to :func:`~nurbscan.reconstruct.view.reconstruct_view`.
+    overlay : Path or None
+        Where to write the view's detected-line picture.
+    """
+
+    n: int
+    index: int
+    angle: float
+    grid: Path
+    white: Path | None
+    rig: Any
+    pattern: Any
+    kwargs: dict = field(default_factory=dict)
+    overlay: Path | None = None
+
+
+@dataclass(frozen=True)
+class ViewOutput:
+    """What the view task returns: the view's reconstruction, its line count and times (s)."""
+
+    result: ViewResult
+    nlines: int
+    times: dict
+
+
+@dataclass(frozen=True)
+class ScanPlan:
+    """A scan folder read and checked, split into its view tasks (:func:`plan_scan`).
+
+    Attributes
+    ----------
+    scan : Path
+        The scan folder.
+    rig : Rig
+        The calibrated rig.
+    tasks : tuple of ViewTask
+        The views to reconstruct, in ``scan.json``'s order.
+    total : int
+        Views in ``scan.json`` (``tasks`` may hold fewer).
+    meta : dict
+        The model's first ``meta`` entries (source, pattern summary, frame).
+    rig_frame : bool
+        The views stay in the rig frame (a rig whose turntable is not calibrated).
+    """
+
+    scan: Path
+    rig: Any
+    tasks: tuple[ViewTask, ...]
+    total: int
+    meta: dict
+    rig_frame: bool = False
+
+
+def plan_scan(scan_dir: str | os.PathLike, rig, *, views: list[int] | None = None,
+              overlays: str | os.PathLike | None = None, turntable_calibrated: bool = True,
+              allow_outside: bool = False, **view_kwargs) -> ScanPlan:
+    """Read and check a scan folder's ``scan.json`` and pattern; one task per view.
+
+    Reads ``scan.json`` (:func:`nurbscan.io.load_scan`) and the pattern sidecar only (never
+    ``truth/``, nor the images). Raises :class:`NurbscanError` for a rig that could only give
+    an empty model (:func:`~nurbscan.reconstruct.sanity.check_rig`), a folder that is not a
+    scan, paths that leave it (unless ``allow_outside``), a pattern that cannot be read,
+    images of another size than the rig's camera, or several views with a rig whose turntable
+    is not calibrated. Parameters as :func:`reconstruct_scan`.
+    """
+    from ..pattern import load_pattern
+
+    check_rig(rig)  # a zero baseline or a folding lens could only give an empty model
+    scan = load_scan(scan_dir, allow_outside=allow_outside)  # paths inside the folder
+    pattern = load_pattern(scan.pattern_sidecar)
+    size = scan.image_size
+    if size != (int(rig.camera.width), int(rig.camera.height)):
+        raise NurbscanError(f"calibration: camera size {rig.camera.width} x {rig.camera.height} "
+                            f"does not match the scan's images {size[0]} x {size[1]}")
+    meta = {"source": str(scan_dir), "pattern": pattern.summary()
+            if hasattr(pattern, "summary") else None}
+    tasks = []
+    for n, v in enumerate(scan.views):
+        if views is not None and v.index not in views:
+            continue
+        tasks.append(ViewTask(
+            n=n, index=v.index, angle=v.table_angle, grid=v.grid, white=v.white, rig=rig,
+            pattern=pattern, kwargs=dict(view_kwargs),
+            overlay=None if overlays is None
+            else Path(overlays) / f"view_{v.index:02d}_overlay.png"))
+    if not turntable_calibrated:
+        if len(tasks) > 1:
+            from ..calibrate import TURNTABLE_NOT_CALIBRATED
+
+            raise NurbscanError(f"{scan.folder / 'scan.json'}: {len(tasks)} views cannot be "
+                                f"merged, {TURNTABLE_NOT_CALIBRATED}; reconstruct one view "
+                                "(--views K)")
+        meta["frame"] = "rig"
+    return ScanPlan(scan=Path(scan.folder), rig=rig, tasks=tuple(tasks), total=len(scan.views),
+                    meta=meta, rig_frame=not turntable_calibrated)
+
+
+def run_view(task: ViewTask) -> ViewOutput:
+    """The per-view task: read the view's images, detect the grid, triangulate its lines and
+    build the view's curve network and patches (rig frame).
+
+    Steps: :func:`nurbscan.io.read_image` (the file's own integer type), detection
+    (:func:`reconstruct_detection`; :func:`nurbscan.detect.detect_lines` for a line
+    pattern), :func:`~nurbscan.reconstruct.view.reconstruct_view`, and the overlay picture when
+    ``task.overlay`` is set. Depends on nothing but ``task``: the same result in any process.
+    """
     t0 = time.perf_counter()
     # the file's own integer type: detect linearises it by table look-up (7.1 MP teapot view:
     # 1.5 s instead of 2.4-2.8 s from float32 input, the same lines)
-    grid = read_image(job["grid"], as_float=False)
-    white = read_image(job["white"], as_float=False) if job["white"] is not None else None
+    grid = read_image(task.grid, as_float=False)
+    white = read_image(task.white, as_float=False) if task.white is not None else None
     t1 = time.perf_counter()
     stages: dict = {}
-    if isinstance(job["pattern"], LinePattern):  # thin lines: centre-lines (edge 2)
+    if isinstance(task.pattern, LinePattern):  # thin lines: centre-lines (edge 2)
         from ..detect import detect_lines
 
-        det = detect_lines(grid, job["pattern"], white=white)
+        det = detect_lines(grid, task.pattern, white=white)
     else:
         # a chroma-subsampled JPEG's colour channels have displaced edges (detect_grid)
-        det = reconstruct_detection(grid, job["pattern"], white, job["rig"],
-                                    chroma_subsampled(job["grid"]), stages)
+        det = reconstruct_detection(grid, task.pattern, white, task.rig,
+                                    chroma_subsampled(task.grid), stages)
     t2 = time.perf_counter()
-    res = reconstruct_view(det, job["rig"], job["pattern"], **job["kwargs"])
+    res = reconstruct_view(det, task.rig, task.pattern, **task.kwargs)
     t3 = time.perf_counter()
-    if job.get("overlay") is not None:
-        _write_overlay(job["overlay"], grid, det, job["pattern"])
+    if task.overlay is not None:
+        _write_overlay(task.overlay, grid, det, task.pattern)
     # the detection's stages (detect_grid's timings) as detect_<stage>_s
-    return res, det.nlines, {"read_s": round(t1 - t0, 3), "detect_s": round(t2 - t1, 3),
-                             "image_to_gordon_s": round(t3 - t1, 3),
-                             **{f"detect_{k}": round(v, 3) for k, v in stages.items()}}
+    return ViewOutput(res, det.nlines, {
+        "read_s": round(t1 - t0, 3), "detect_s": round(t2 - t1, 3),
+        "image_to_gordon_s": round(t3 - t1, 3),
+        **{f"detect_{k}": round(v, 3) for k, v in stages.items()}})
+
+
+def view_line(task: ViewTask, out: ViewOutput, total: int) -> str:
+    """The progress line of a finished view."""
+    res, t = out.result, out.times
+    return (f"view {task.n + 1}/{total} (table {np.degrees(task.angle):.1f} deg): "
+            f"{out.nlines} lines, {res.cells[0]}/{res.cells[1]} complete cells, "
+            f"{len(res.patches)} Gordon patches, {t['image_to_gordon_s']:.1f} s "
+            f"(detect {t['detect_s']:.1f} s)")
+
+
+def assemble_scan(plan: ScanPlan, outputs, *, merge: MergeOptions | None = DEFAULT_MERGE,
+                  fusion=None, progress: Callable[[str], None] | None = None) -> Model:
+    """The per-scan task: the views' results in one model, merged and fused.
+
+    Steps: each view into the object frame (:func:`add_view`, in the tasks' order), the
+    light-surface check on the first view with lines (:func:`light_surface_check`), the merge
+    (:func:`nurbscan.merge.merge_views`) and the fused mesh
+    (:func:`nurbscan.merge.fuse_model`), neither for views kept in the rig frame.
+
+    Parameters
+    ----------
+    plan : ScanPlan
+        The scan (:func:`plan_scan`).
+    outputs : sequence of ViewOutput
+        :func:`run_view` of each of ``plan.tasks``, in their order (a view left out is
+        given with its task left out of ``plan``).
+    merge, fusion, progress :
+        As :func:`reconstruct_scan`.
+    """
+    if len(outputs) != len(plan.tasks):
+        raise ValueError(f"{len(outputs)} view outputs for {len(plan.tasks)} view tasks")
+    rig = plan.rig
+    model = Model(meta=dict(plan.meta))
+    frame = RigFrame() if plan.rig_frame else None
+    for task, out in zip(plan.tasks, outputs, strict=True):
+        if "light_surface" not in model.meta and out.result.lines:
+            model.meta["light_surface"] = light_surface_check(out.result, rig)
+        add_view(model, out.result, rig, task.index, task.angle, out.times, frame=frame)
+    check_model(model, str(plan.scan / "scan.json"))  # no line in any view: refused
+    if merge is not None and frame is None:  # no table plane nor axis in the rig frame
+        t_merge = time.perf_counter()
+        merge_views(model, rig.turntable, merge, progress)
+        model.meta["merge"]["merge_s"] = round(time.perf_counter() - t_merge, 3)
+    if fusion is not None and frame is None:
+        from ..merge.fusion import fuse_model
+
+        model.fused = fuse_model(model, rig, {t.index: t.white for t in plan.tasks}, fusion,
+                                 progress=progress)
+    return model
 
 
 def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
@@ -231,6 +409,10 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
                      turntable_calibrated: bool = True, allow_outside: bool = False,
                      **view_kwargs) -> Model:
     """Reconstruct every view of a scan folder and merge them in the object frame.
+
+    The steps are tasks that :mod:`nurbscan.batch` runs on Dask as well: :func:`plan_scan`,
+    :func:`run_view` per view (here in up to ``workers`` processes,
+    :func:`nurbscan._parallel.process_map`) and :func:`assemble_scan`.
 
     Parameters
     ----------
@@ -266,61 +448,16 @@ def reconstruct_scan(scan_dir: str | os.PathLike, rig, *,
     **view_kwargs
         Passed to :func:`~nurbscan.reconstruct.view.reconstruct_view`.
     """
-    from ..pattern import load_pattern
-
-    check_rig(rig)  # a zero baseline or a folding lens could only give an empty model
-    scan = load_scan(scan_dir, allow_outside=allow_outside)  # paths inside the folder
-    pattern = load_pattern(scan.pattern_sidecar)
-    size = scan.image_size
-    if size != (int(rig.camera.width), int(rig.camera.height)):
-        raise NurbscanError(f"calibration: camera size {rig.camera.width} x {rig.camera.height} "
-                            f"does not match the scan's images {size[0]} x {size[1]}")
-    model = Model(meta={"source": str(scan_dir), "pattern": pattern.summary()
-                        if hasattr(pattern, "summary") else None})
+    plan = plan_scan(scan_dir, rig, views=views, overlays=overlays,
+                     turntable_calibrated=turntable_calibrated, allow_outside=allow_outside,
+                     **view_kwargs)
     t_all = time.perf_counter()
-    jobs = []
-    for n, v in enumerate(scan.views):
-        idx = v.index
-        if views is not None and idx not in views:
-            continue
-        jobs.append({"n": n, "index": idx, "angle": v.table_angle, "grid": v.grid,
-                     "white": v.white, "rig": rig, "pattern": pattern, "kwargs": view_kwargs,
-                     "overlay": None if overlays is None
-                     else Path(overlays) / f"view_{idx:02d}_overlay.png"})
-    total = len(scan.views)
-    frame = None
-    if not turntable_calibrated:
-        if len(jobs) > 1:
-            from ..calibrate import TURNTABLE_NOT_CALIBRATED
 
-            raise NurbscanError(f"{scan.folder / 'scan.json'}: {len(jobs)} views cannot be merged, "
-                                f"{TURNTABLE_NOT_CALIBRATED}; reconstruct one view (--views K)")
-        frame = RigFrame()
-        model.meta["frame"] = "rig"
-
-    def done(i: int, out) -> None:
-        res, nlines, t = out
+    def done(i: int, out: ViewOutput) -> None:
         if progress is not None:
-            job = jobs[i]
-            progress(f"view {job['n'] + 1}/{total} (table {np.degrees(job['angle']):.1f} deg): "
-                     f"{nlines} lines, {res.cells[0]}/{res.cells[1]} complete cells, "
-                     f"{len(res.patches)} Gordon patches, {t['image_to_gordon_s']:.1f} s "
-                     f"(detect {t['detect_s']:.1f} s)")
+            progress(view_line(plan.tasks[i], out, plan.total))
 
-    for job, (res, _, t) in zip(jobs, process_map(_view_job, jobs, workers, done=done),
-                                strict=True):
-        if "light_surface" not in model.meta and res.lines:
-            model.meta["light_surface"] = light_surface_check(res, rig)
-        add_view(model, res, rig, job["index"], job["angle"], t, frame=frame)
-    check_model(model, str(scan.folder / "scan.json"))  # no line in any view: refused
-    if merge is not None and frame is None:  # no table plane nor axis in the rig frame
-        t_merge = time.perf_counter()
-        merge_views(model, rig.turntable, merge, progress)
-        model.meta["merge"]["merge_s"] = round(time.perf_counter() - t_merge, 3)
-    if fusion is not None and frame is None:
-        from ..merge.fusion import fuse_model
-
-        model.fused = fuse_model(model, rig, {j["index"]: j["white"] for j in jobs}, fusion,
-                                 progress=progress)
+    outputs = process_map(run_view, plan.tasks, workers, done=done)
+    model = assemble_scan(plan, outputs, merge=merge, fusion=fusion, progress=progress)
     model.meta["total_s"] = round(time.perf_counter() - t_all, 3)
     return model

@@ -1,0 +1,248 @@
+"""Tests of nurbscan batch (Dask): the same model as `nurbscan reconstruct` (serial and local
+pool), failures reported per view and scan, resumable, and a real cluster of `dask scheduler`
+and `dask worker` processes on localhost, one of which is killed in the middle of the batch.
+
+The oracle for "the same model" is the sha256 of the model folder's arrays (points, normals,
+edge points, every curve's and surface's control points, the fused mesh) as
+`reconstruct_scan` writes them; for the evaluation, `evaluate_model` itself."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("distributed")
+
+from nurbscan.cli import main  # noqa: E402
+from nurbscan.reconstruct import load_model  # noqa: E402
+
+
+def model_hash(folder) -> str:
+    """sha256 of a model folder's arrays (not its times)."""
+    m = load_model(folder)
+    h = hashlib.sha256()
+    arrays = [m.points, m.normals, m.point_view, m.edge_points, m.edge_view]
+    arrays += [s["surface"].control_points for s in m.surfaces]
+    arrays += [c["curve"].control_points for c in m.curves]
+    if m.fused is not None:
+        arrays += [m.fused.vertices, m.fused.faces, m.fused.colors]
+    for a in arrays:
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+@pytest.fixture(scope="module")
+def scans(tmp_path_factory):
+    """A 384 x 288, 2-view teapot scan with a coarse grid (pitch 64, band 24 projector px),
+    and: its copy without truth/, a copy with view 1's grid photograph corrupt, a copy whose
+    scan.json is malformed; the true rig as calib.json."""
+    from nurbscan.pattern import Pattern
+    from nurbscan.simulate.render import RenderSettings
+    from nurbscan.simulate.rig import default_rig, scale_camera
+    from nurbscan.simulate.scan import simulate_scan
+    from nurbscan.simulate.scenes import make_scene
+
+    root = tmp_path_factory.mktemp("batch")
+    a = root / "scans" / "alpha"
+    simulate_scan(make_scene("teapot"), a, views=2, rig=scale_camera(default_rig(), 384, 288),
+                  calibration=False, settings=RenderSettings(samples=2),
+                  pattern=Pattern.create(1920, 1080, pitch=64, band=24))
+    calib = root / "calib.json"
+    shutil.copy(a / "truth" / "rig.json", calib)
+    blind = root / "scans" / "blind"
+    shutil.copytree(a, blind, ignore=shutil.ignore_patterns("truth"))
+    bad = root / "scans" / "badview"
+    shutil.copytree(a, bad, ignore=shutil.ignore_patterns("truth"))
+    (bad / "views" / "view_01_grid.png").write_bytes(b"not a png")
+    broken = root / "scans" / "broken"
+    shutil.copytree(a, broken, ignore=shutil.ignore_patterns("truth"))
+    (broken / "scan.json").write_text("{not json")
+    return {"alpha": a, "blind": blind, "badview": bad, "broken": broken, "calib": calib,
+            "root": root}
+
+
+@pytest.fixture(scope="module")
+def reference(scans):
+    """`reconstruct_scan` of alpha serially and on the local pool of 2 processes (the fused
+    mesh on one Poisson thread, as the batch fuses), saved: their hashes."""
+    import warnings
+
+    from nurbscan.camera import load_rig
+    from nurbscan.merge.fusion import FusionOptions
+    from nurbscan.reconstruct import reconstruct_scan
+
+    rig = load_rig(scans["calib"])
+    out = {}
+    for workers in (1, 2):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            m = reconstruct_scan(scans["alpha"], rig, workers=workers,
+                                 fusion=FusionOptions(workers=1))
+        m.save(scans["root"] / f"ref{workers}")
+        out[workers] = model_hash(scans["root"] / f"ref{workers}")
+    return out
+
+
+def test_local_cluster_same_model_failures_reported_and_resumable(scans, reference, tmp_path,
+                                                                  capsys):
+    """LocalCluster of 2 workers, four scans: alpha and blind give the model of
+    `reconstruct_scan` bit for bit (serial = pool = Dask); alpha is evaluated (the figures of
+    evaluate_model), blind (no truth) is not; badview is written from view 0 and reported
+    'partial' with view 1's error naming the file; broken fails with the scan.json error;
+    exit 1. A re-run skips alpha and blind (untouched) and retries the other two."""
+    from nurbscan.evaluate import evaluate_model
+
+    assert reference[1] == reference[2]
+    out = tmp_path / "out"
+    args = ["batch", *(str(scans[k]) for k in ("alpha", "blind", "badview", "broken")),
+            "-o", str(out), "--calib", str(scans["calib"]), "--workers", "2",
+            "--export", "glb"]
+    assert main(args) == 1
+    cap = capsys.readouterr()
+    assert "dashboard http://" in cap.err
+    assert sum("scan " in ln and "/4 " in ln for ln in cap.err.splitlines()) == 4, cap.err
+    assert "1 ok" not in cap.out and "2 ok, 1 partial, 1 failed" in cap.out, cap.out
+    summary = json.loads((out / "batch.json").read_text())
+    status = {r["name"]: r for r in summary["scans"]}
+    assert {k: v["status"] for k, v in status.items()} == {
+        "alpha": "ok", "blind": "ok", "badview": "partial", "broken": "failed"}
+    assert model_hash(out / "alpha" / "model") == reference[1]
+    assert model_hash(out / "blind" / "model") == reference[1]
+    assert (out / "alpha" / "model.glb").stat().st_size > 1000
+    ev = json.loads((out / "alpha" / "evaluation.json").read_text())
+    here = evaluate_model(load_model(out / "alpha" / "model"), scans["alpha"] / "truth",
+                          workers=1)
+    assert ev["rows"]["gordon"] == json.loads(json.dumps(here["rows"]["gordon"]))
+    assert 0 < ev["coverage"] == here["coverage"]
+    assert not (out / "blind" / "evaluation.json").exists()
+    bad = status["badview"]
+    assert bad["views_ok"] == 1 and len(bad["errors"]) == 1
+    assert bad["errors"][0].startswith("view 1:") and "view_01_grid.png" in bad["errors"][0]
+    assert len(load_model(out / "badview" / "model").views) == 1
+    assert "scan.json" in status["broken"]["errors"][0]
+    assert not (out / "broken").exists()
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".")]  # no staging left
+    # re-run: the complete scans are skipped, the others retried
+    before = (out / "alpha" / "batch.json").stat().st_mtime_ns
+    assert main(args) == 1
+    again = {r["name"]: r["status"] for r in json.loads((out / "batch.json").read_text())
+             ["scans"]}
+    assert again == {"alpha": "skipped", "blind": "skipped", "badview": "partial",
+                     "broken": "failed"}
+    assert (out / "alpha" / "batch.json").stat().st_mtime_ns == before
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _dask(*args, env) -> subprocess.Popen:
+    """``dask ARGS`` from this interpreter's environment, in its own process group."""
+    exe = Path(sys.executable).with_name("dask")
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "dask"]
+    return subprocess.Popen([*cmd, *args], env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(20)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def test_cluster_of_processes_with_a_worker_killed(scans, reference, tmp_path, capsys):
+    """`dask scheduler` and two `dask worker` processes on localhost (free ports); the same
+    command with --scheduler on three scans; one worker (and its nanny) killed with SIGKILL
+    once the first view is done: every scan finishes, each the model of `reconstruct_scan`."""
+    import nurbscan
+
+    src = str(Path(nurbscan.__file__).parents[1])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [src, *filter(None, [os.environ.get("PYTHONPATH")])])}
+    port = _free_port()
+    addr = f"tcp://127.0.0.1:{port}"
+    sched = _dask("scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard",
+                  env=env)
+    workers = [_dask("worker", addr, "--nthreads", "1", "--nworkers", "1", "--no-dashboard",
+                     "--memory-limit", "4GiB", env=env) for _ in range(2)]
+    copies = []
+    for k in range(3):  # each with its own calib.json (per-scan calibration, no --calib)
+        c = tmp_path / "scans" / f"copy{k}"
+        shutil.copytree(scans["alpha"], c, ignore=shutil.ignore_patterns("truth"))
+        shutil.copy(scans["calib"], c / "calib.json")
+        copies.append(c)
+    out = tmp_path / "out"
+    killed = threading.Event()
+
+    def kill_one():  # as soon as a view of the first scan is done (its overlay written)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 600:
+            if list(out.glob(".copy*.partial/model/overlays/*.png")):
+                os.killpg(workers[0].pid, signal.SIGKILL)
+                killed.set()
+                return
+            time.sleep(0.05)
+
+    try:
+        killer = threading.Thread(target=kill_one, daemon=True)
+        killer.start()
+        rc = main(["batch", *map(str, copies), "-o", str(out), "--scheduler", addr,
+                   "--export", "none", "--no-evaluate"])
+        killer.join(1)
+    finally:
+        for p in (*workers, sched):
+            _stop(p)
+    err = capsys.readouterr().err
+    assert killed.is_set(), "no view finished before the batch did"
+    assert workers[0].poll() is not None
+    assert rc == 0, err
+    assert f"Dask scheduler {addr}" in err
+    summary = json.loads((out / "batch.json").read_text())
+    assert [r["status"] for r in summary["scans"]] == ["ok"] * 3
+    assert [r["calibration"] for r in summary["scans"]] == [
+        str((c / "calib.json").resolve()) for c in copies]
+    for c in copies:
+        assert model_hash(out / c.name / "model") == reference[1]
+
+
+def test_input_errors_are_one_line(scans, tmp_path, capsys, monkeypatch):
+    """Two scans of one name, an unknown export format, a scan without calibration and
+    without calib.json, and no Dask installed: one line each on stderr, exit 2, nothing run."""
+    other = tmp_path / "x" / "alpha"
+    shutil.copytree(scans["alpha"], other, ignore=shutil.ignore_patterns("truth", "views"))
+    out = tmp_path / "out"
+    base = ["batch", "-o", str(out), "--calib", str(scans["calib"])]
+    assert main([*base, str(scans["alpha"]), str(other)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "the same name as" in err[0], err
+    assert main([*base, str(scans["alpha"]), "--export", "glb,step"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--export step: unknown format" in err[0], err
+    # no Dask: the one-line error names what to install
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    assert main([*base, str(scans["alpha"])]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pip install 'nurbscan[batch]'" in err[0], err
+    assert not (out / "alpha").exists()
+    # without --calib, a scan with neither calib.json nor calibration/ fails, reported (serial)
+    assert main(["batch", "-o", str(out), str(scans["blind"]), "--serial", "-q"]) == 1
+    cap = capsys.readouterr()
+    assert "blind: failed: calibration:" in cap.err and "no calib.json" in cap.err, cap.err
