@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from _export_fixtures import CENTRE, R, quarter_sphere
 
+from _export_fixtures import CENTRE, R, quarter_sphere
 from nurbscan.merge.cad import CadOptions, cad_set, overlap_area, sub_surface
 from nurbscan.reconstruct import Model
 
@@ -38,8 +38,8 @@ def _scaled(S, r):
 def _two_views():
     """View 0: quarter 0 of the sphere's band (latitudes about +-35 degrees). View 1: the
     second half of quarter 0 (on view 0's patch) and the first half of quarter 1, radius
-    R + 0.02, measured with noise; view 1's edge points stop at 60 % of quarter 1's band height (the rest of that
-    patch runs past its data)."""
+    R + 0.02, measured with noise; view 1's edge points stop at 60 % of quarter 1's band
+    height (the rest of that patch runs past its data)."""
     A = _band(quarter_sphere(0))
     B1 = _scaled(sub_surface(A, (0.5, 1.0), A.domain[1]), R + 0.02)
     Q1 = _band(quarter_sphere(1))

@@ -4,7 +4,6 @@ the fused coloured mesh, glb/obj/ply/stl, the glTF validator, the CLI and atomic
 from __future__ import annotations
 
 import importlib.util
-
 import json
 import math
 import shutil

@@ -48,8 +48,8 @@ def occ_face(s: NurbsSurface):
     """A ``TopoDS_Face`` on the B-spline surface equal to ``s`` (natural boundary)."""
     _ocp()
     from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace
-    from OCP.Geom import Geom_BSplineSurface
     from OCP.collections import Array2_double, Array2_gp_Pnt
+    from OCP.Geom import Geom_BSplineSurface
     from OCP.gp import gp_Pnt
 
     P = np.asarray(s.control_points, float)
