@@ -85,6 +85,28 @@ def test_registration_recovers_perturbed_table_angles(teapot_views):
         assert np.mean(scene.distance(Q)) < np.mean(scene.distance(exact)) + 0.005
 
 
+def test_exact_angles_are_not_significant_turns(teapot_views):
+    """Exact table angles: the turns about the axis that the pose graph finds are within their
+    uncertainty (chi-square of each below the threshold, the variance factor estimated from
+    the misclosures), and each turn within 3 of its standard deviations of zero."""
+    reg = register_views(teapot_views, FAST)
+    t = reg.significance
+    assert t is not None and not t["turn_significant"], t
+    for v, q in t["views"].items():
+        assert q["chi2_turn"] < t["threshold_turn"]
+        assert abs(reg.corrections[v].axis_angle) < 3 * q["sd_axis_deg"] + 1e-9
+
+
+def test_perturbed_angles_are_significant(teapot_views):
+    """One view off by 0.2 degrees (ten times the target accuracy) is found significant and
+    corrected by a turn about the axis alone."""
+    delta = {v: (0.2 if v == 5 else 0.0) for v in teapot_views}
+    reg = register_views(_perturbed(teapot_views, delta), FAST)
+    assert reg.applied and reg.significance["significant"], reg.significance
+    assert abs(reg.corrections[5].axis_angle - 0.2) < 0.02
+    assert max(abs(reg.corrections[v].axis_angle) for v in teapot_views if v != 5) < 0.02
+
+
 @pytest.mark.parametrize("scene", ["sphere", "cylinder"])
 def test_revolution_surface_keeps_the_given_angles(scene):
     """A sphere or a cup on the axis cannot fix the turn about the axis: said so, angles as

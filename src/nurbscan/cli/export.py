@@ -1,4 +1,4 @@
-"""``nurbscan export``: write a model as glb, obj, ply, stl, 3dm or igs."""
+"""``nurbscan export``: write a model as glb, obj, ply, stl, 3dm, igs or step."""
 
 from __future__ import annotations
 
@@ -7,35 +7,38 @@ import sys
 import time
 from pathlib import Path
 
-FORMATS = ("glb", "obj", "ply", "stl", "3dm", "igs")
+FORMATS = ("glb", "obj", "ply", "stl", "3dm", "igs", "step")
 
 
 def register(sub) -> None:
     """Add the ``export`` sub-command."""
     p = sub.add_parser(
-        "export", help="Write a model as glb, obj, ply, stl, 3dm or igs",
+        "export", help="Write a model as glb, obj, ply, stl, 3dm, igs or step",
         description=(
-            "Export a model folder. NURBS for CAD: 3dm (Rhino, rhino3dm) and igs (IGES 5.3, "
-            "entities 126/128), in mm, holding the curves and surfaces of --kinds. Meshes for VR: "
+            "Export a model folder. NURBS for CAD: 3dm (Rhino, rhino3dm), igs (IGES 5.3, "
+            "entities 126/128) and step (OpenCASCADE, pip install 'nurbscan[cad]'), in mm, "
+            "holding the model's CAD surface set (every part of the covered surface on exactly "
+            "one surface, cut back to the data; step sewn into shells); --patches: the "
+            "per-view curves and surfaces of --kinds instead. Meshes for VR: "
             "the model's fused mesh (fused. py; fused now when the folder has none), one "
             "surface of the object with vertex colours from the white-light images, at most "
             "--max-triangles; --patches: the per-view Gordon patches tessellated instead. glb "
-            "in metres, y up (glTF), obj/ply/stl in mm. STEP is not offered (it would need "
-            "OpenCASCADE at run time). The file is written atomically."))
+            "in metres, y up (glTF), obj/ply/stl in mm. The file is written atomically."))
     p.add_argument("model", type=Path, help="model folder (with model.json)")
     p.add_argument("--format", choices=FORMATS, default=None,
                    help="output format (default: from the output file's extension)")
     p.add_argument("-o", "--output", type=Path, required=True, help="output file")
     p.add_argument("--kinds", default="horizontal_line,vertical_line,gordon",
-                   help="NURBS formats: comma-separated kinds to write, or 'all' "
-                        "(default horizontal_line,vertical_line,gordon)")
+                   help="NURBS formats with --patches: comma-separated kinds to write, or "
+                        "'all' (default horizontal_line,vertical_line,gordon)")
     p.add_argument("--no-colour", action="store_true",
                    help="mesh formats: neutral grey instead of the white-light colours")
     p.add_argument("--points", action="store_true",
                    help="ply only: the merged point cloud (points.npz) with normals and "
                         "colours instead of the mesh")
     p.add_argument("--patches", action="store_true",
-                   help="mesh formats: the per-view Gordon patches instead of the fused mesh")
+                   help="the per-view Gordon patches (and curves) instead of the fused mesh "
+                        "or the CAD set")
     p.add_argument("--max-triangles", type=int, default=300_000,
                    help="mesh formats: triangle budget of the fused mesh (300000)")
     p.add_argument("--per-span", type=int, default=4,
@@ -50,11 +53,15 @@ def run(args: argparse.Namespace) -> int:
     from ..export import ALL_KINDS, export_model
 
     fmt = args.format or args.output.suffix.lstrip(".").lower()
+    fmt = {"stp": "step", "iges": "igs"}.get(fmt, fmt)
     if fmt not in FORMATS:
         raise NurbscanError(f"{args.output}: unknown format {fmt!r}; give --format, one of "
                             f"{', '.join(FORMATS)}")
     suffix = args.output.suffix.lstrip(".").lower()
-    if args.format and suffix != fmt and not (fmt == "igs" and suffix == "iges"):
+    if fmt == "stp":
+        fmt = "step"
+    if args.format and suffix != fmt and not (fmt == "igs" and suffix == "iges") \
+            and not (fmt == "step" and suffix == "stp"):
         raise NurbscanError(f"{args.output}: the name says {suffix or 'no format'!r} but "
                             f"--format is {fmt!r}; name the file .{fmt}")
     if args.per_span < 1:

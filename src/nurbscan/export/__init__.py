@@ -1,8 +1,10 @@
 """Exports of a reconstructed model for CAD and VR (issue 8).
 
-* NURBS: Rhino ``.3dm`` (:mod:`.rhino`, rhino3dm) and IGES 5.3 (:mod:`.iges`, written by hand:
-  entities 126 and 128). STEP is not offered: writing it needs OpenCASCADE at run time, which
-  is a test-only dependency of nurbscan.
+* NURBS: Rhino ``.3dm`` (:mod:`.rhino`, rhino3dm), IGES 5.3 (:mod:`.iges`, written by hand:
+  entities 126 and 128) and STEP (:mod:`.step`, OpenCASCADE through OCP, the optional extra
+  ``nurbscan[cad]``): by default the model's CAD surface set (:func:`nurbscan.merge.cad.cad_set`:
+  every part of the covered surface on exactly one surface, cut back to the data; STEP sewn
+  into shells), or with ``patches=True`` the per-view curves and surfaces of ``kinds``.
 * Meshes (:mod:`.mesh`): ``.glb`` (metres, y up), ``.obj``, ``.ply``, ``.stl`` (millimetres),
   with vertex colours from the scan's white-light images: by default the model's fused mesh
   (``fused.ply``, :mod:`nurbscan.merge.fusion`; fused here when the folder has none), or the
@@ -28,7 +30,7 @@ __all__ = ["FORMATS", "NURBS_FORMATS", "MESH_FORMATS", "DEFAULT_KINDS", "ALL_KIN
            "iges_text", "load_model", "mesh_bytes", "select", "tessellate", "to_rhino_curve",
            "to_rhino_surface", "write_3dm", "write_iges", "write_mesh"]
 
-NURBS_FORMATS = ("3dm", "igs")
+NURBS_FORMATS = ("3dm", "igs", "step")
 FORMATS = MESH_FORMATS + NURBS_FORMATS
 ALL_KINDS = ("horizontal_line", "vertical_line", "horizontal_skin", "vertical_skin", "gordon")
 DEFAULT_KINDS = ("horizontal_line", "vertical_line", "gordon")
@@ -154,7 +156,9 @@ def export_model(model, path: str | os.PathLike, fmt: str | None = None,
                  max_triangles: int | None = None, progress=None) -> Path:
     """Export a model (a folder or a loaded Model) to ``path`` in ``fmt`` (default: suffix).
 
-    NURBS formats (3dm, igs) hold the curves and surfaces of ``kinds``; mesh formats (glb,
+    NURBS formats (3dm, igs, step) hold the model's CAD surface set
+    (:func:`nurbscan.merge.cad.cad_set`), or with ``patches`` the per-view curves and surfaces
+    of ``kinds`` (step: the surfaces only); mesh formats (glb,
     obj, ply, stl) the fused mesh of the object (:func:`fused_mesh`, at most
     ``max_triangles``), or with ``patches`` the tessellated per-view patches of
     :func:`build_mesh`; coloured from the white-light images when ``colour`` and the scan can
@@ -162,12 +166,7 @@ def export_model(model, path: str | os.PathLike, fmt: str | None = None,
     """
     path = Path(path)
     fmt = (fmt or path.suffix.lstrip(".")).lower()
-    if fmt in ("iges", "stp", "step"):
-        if fmt == "iges":
-            fmt = "igs"
-        else:
-            raise NurbscanError("format step: not supported (needs OpenCASCADE at run time); "
-                                "use igs or 3dm")
+    fmt = {"iges": "igs", "stp": "step"}.get(fmt, fmt)
     if fmt not in FORMATS:
         raise NurbscanError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
     if points and fmt != "ply":
@@ -181,9 +180,24 @@ def export_model(model, path: str | os.PathLike, fmt: str | None = None,
         images = find_white_images(model) if colour and rig is not None else {}
         return write_points(model, path, rig, images)
     if fmt in NURBS_FORMATS:
-        curves, surfaces = select(model, kinds)
+        if patches:
+            curves, surfaces = select(model, kinds)
+        else:
+            from ..merge.cad import cad_set
+
+            if fmt == "step":
+                from .step import _ocp
+
+                _ocp()  # before the CAD set's work
+            cad = cad_set(model, find_rig(model), progress=progress)
+            curves, surfaces = [], [(f"cad view {d['view']}", d["surface"])
+                                    for d in cad.surfaces]
         if fmt == "3dm":
             return write_3dm(path, curves, surfaces)
+        if fmt == "step":
+            from .step import write_step
+
+            return write_step(path, [s for _, s in surfaces], progress=progress)
         return write_iges(path, [c for _, c in curves], [s for _, s in surfaces])
     if not patches:
         return write_mesh(path, fused_mesh(model, colour, max_triangles, progress), fmt)

@@ -101,6 +101,8 @@ def merge_views(model, turntable, options: MergeOptions | None = None,
         apply_registration(model, reg, turntable)
         out["registration"] = {k: v for k, v in reg.to_dict().items() if k != "corrections"}
         out["warnings"] += reg.warnings
+        if reg.significance is not None:
+            say(f"merge: registration: {reg.significance['decision']}")
         if reg.applied:
             say(f"merge: registered {len(reg.corrections) - len(reg.unregistered)} views on "
                 f"{len(reg.pairs)} overlapping pairs")

@@ -1,0 +1,144 @@
+"""STEP (ISO 10303-21, AP214) writer of the CAD surface set, through OpenCASCADE (OCP).
+
+Each surface becomes a ``Geom_BSplineSurface`` (distinct knots and multiplicities, poles and
+weights; OCP's arrays are 1-based) and a face bounded by its natural boundary
+(``BRepBuilderAPI_MakeFace``); the faces are sewn into shells (``BRepBuilderAPI_Sewing``:
+edges within ``tolerance`` mm are joined) and written with ``STEPControl_Writer`` in mm.
+OCP is the optional extra ``nurbscan[cad]`` (``cadquery-ocp-novtk``).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import NurbscanError
+from ..io.atomic import atomic_path
+from ..nurbs import NurbsSurface
+
+__all__ = ["occ_face", "sew_faces", "shell_count", "write_step"]
+
+OCP_MISSING = ("STEP export needs OpenCASCADE (OCP): pip install 'nurbscan[cad]' "
+               "(cadquery-ocp-novtk)")
+
+
+def _ocp():
+    """Import check: a one-line error when OCP is missing."""
+    try:
+        import OCP  # noqa: F401
+    except ImportError:
+        raise NurbscanError(OCP_MISSING) from None
+
+
+def _knots(U: np.ndarray):
+    from OCP.collections import Array1_double, Array1_int
+
+    vals, mults = np.unique(np.asarray(U, float), return_counts=True)
+    k = Array1_double(1, len(vals))
+    m = Array1_int(1, len(vals))
+    for i, (x, c) in enumerate(zip(vals, mults, strict=True)):
+        k.SetValue(i + 1, float(x))
+        m.SetValue(i + 1, int(c))
+    return k, m
+
+
+def occ_face(s: NurbsSurface):
+    """A ``TopoDS_Face`` on the B-spline surface equal to ``s`` (natural boundary)."""
+    _ocp()
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace
+    from OCP.collections import Array2_double, Array2_gp_Pnt
+    from OCP.Geom import Geom_BSplineSurface
+    from OCP.gp import gp_Pnt
+
+    P = np.asarray(s.control_points, float)
+    nu, nv = P.shape[:2]
+    poles = Array2_gp_Pnt(1, nu, 1, nv)
+    for i in range(nu):
+        for j in range(nv):
+            poles.SetValue(i + 1, j + 1, gp_Pnt(*map(float, P[i, j])))
+    ku, mu = _knots(s.knots_u)
+    kv, mv = _knots(s.knots_v)
+    if s.is_rational:
+        W = np.asarray(s.weights, float)
+        w = Array2_double(1, nu, 1, nv)
+        for i in range(nu):
+            for j in range(nv):
+                w.SetValue(i + 1, j + 1, float(W[i, j]))
+        g = Geom_BSplineSurface(poles, w, ku, kv, mu, mv, s.degree_u, s.degree_v)
+    else:
+        g = Geom_BSplineSurface(poles, ku, kv, mu, mv, s.degree_u, s.degree_v)
+    mk = BRepBuilderAPI_MakeFace(g, 1e-6)
+    if not mk.IsDone():
+        raise NurbscanError("STEP export: OpenCASCADE could not make a face of a surface")
+    return mk.Face()
+
+
+def sew_faces(faces, tolerance: float = 0.05):
+    """The faces sewn (``BRepBuilderAPI_Sewing``, edges closer than ``tolerance`` mm
+    joined); returns the sewn shape (a shell, or a compound of shells and faces)."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_Sewing
+
+    sew = BRepBuilderAPI_Sewing(tolerance)
+    for f in faces:
+        sew.Add(f)
+    sew.Perform()
+    return sew.SewedShape()
+
+
+def shell_count(shape) -> tuple[int, int]:
+    """``(shells, faces not in a shell)`` of a shape."""
+    from OCP.TopAbs import TopAbs_FACE, TopAbs_SHELL
+    from OCP.TopExp import TopExp_Explorer
+
+    shells, in_shells = 0, 0
+    ex = TopExp_Explorer(shape, TopAbs_SHELL)
+    while ex.More():
+        shells += 1
+        fx = TopExp_Explorer(ex.Current(), TopAbs_FACE)
+        while fx.More():
+            in_shells += 1
+            fx.Next()
+        ex.Next()
+    faces = 0
+    fx = TopExp_Explorer(shape, TopAbs_FACE)
+    while fx.More():
+        faces += 1
+        fx.Next()
+    return shells, faces - in_shells
+
+
+def write_step(path: str | os.PathLike, surfaces, tolerance: float = 0.05,
+               progress=None) -> Path:
+    """Write surfaces, sewn into shells, as a STEP file (mm) atomically.
+
+    Parameters
+    ----------
+    path : path-like
+    surfaces : iterable of NurbsSurface
+    tolerance : float
+        Sewing tolerance, mm.
+    progress : callable, optional
+    """
+    _ocp()
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.Interface import Interface_Static
+    from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
+
+    say = progress or (lambda _m: None)
+    faces = [occ_face(s) for s in surfaces]
+    if not faces:
+        raise NurbscanError("STEP export: nothing to write (no surfaces)")
+    say(f"STEP: sewing {len(faces)} faces (tolerance {tolerance:g} mm)")
+    shape = sew_faces(faces, tolerance)
+    shells, loose = shell_count(shape)
+    say(f"STEP: {shells} shells, {loose} faces in none")
+    Interface_Static.SetCVal_s("write.step.unit", "MM")
+    w = STEPControl_Writer()
+    w.Transfer(shape, STEPControl_AsIs)
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        if w.Write(str(tmp)) != IFSelect_RetDone:
+            raise NurbscanError(f"{path}: OpenCASCADE failed to write the STEP file")
+    return path

@@ -1,0 +1,365 @@
+"""The CAD surface set: every part of the covered surface on exactly one NURBS surface (#32).
+
+The views' Gordon patches lie in about 2.5 coincident layers. The CAD set keeps, where layers
+coincide, only the best patch, and cuts every patch back to its measured data:
+
+1. **Cells.** Each Gordon patch's parameter domain is cut into a grid of cells about
+   ``cell_mm`` wide on the surface; each cell is represented by its centre (point, unit
+   normal).
+2. **Support (patch borders).** A cell whose centre lies farther than ``support_pitch``
+   pitches from every triangulated edge point of its own view (the measured data) is cut: a
+   patch's border rows can run past the data (a curve extrapolated below a base contour).
+3. **Score.** Each patch gets one score, ``cos(theta) - rms / pitch``: ``theta`` the mean
+   angle between its normals and the directions to its view's camera (most frontal first),
+   ``rms`` the RMS point-to-plane distance of its view's edge points to it (the fit's own
+   residual). One score per patch keeps the partition's seams on few patches.
+4. **Ownership.** A cell is kept when no cell of a better patch (of any view: a view's
+   patches overlap one another too, 22 % of their area on a 1024 x 768 scan) lies on it:
+   within ``cover_mm`` in space, normals within 60 degrees (one k-nearest query for all
+   cells). Two views' layers then meet at a staircase seam one cell wide.
+5. **Rectangles.** Each patch's kept cells are merged into maximal rectangles (runs of rows
+   with the same kept columns), and each rectangle becomes the exact sub-surface of the
+   Gordon surface over it (knots inserted to multiplicity ``p`` at its ends, Piegl and
+   Tiller A5.1 per row): no refit, the geometry is the patch's.
+
+Units: mm, object frame. :mod:`nurbscan.export.step` sews the set into shells (OpenCASCADE).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..errors import NurbscanError
+from ..nurbs import NurbsSurface
+from ..nurbs.curve import insert_knot_h
+
+__all__ = ["CadOptions", "CadSet", "cad_set", "overlap_area", "sub_surface"]
+
+
+@dataclass(frozen=True)
+class CadOptions:
+    """Settings of :func:`cad_set`.
+
+    Attributes
+    ----------
+    cell_mm : float
+        Size of the ownership cells on the surface, mm (the seams' resolution).
+    support_pitch : float
+        Cells farther than this many pitches from their view's edge points are cut.
+    cover_mm : float
+        A cell lies on another patch's cell when their centres are this close (mm): more
+        than ``cell_mm / sqrt(2)`` (a layer's cells are offset anywhere), less than
+        ``cell_mm`` (the cells either side of two patches' common border are a cell apart).
+    neighbours : int
+        Cells of other patches examined per cell.
+    max_cells : int
+        Largest number of cells along one side of a patch.
+    """
+
+    cell_mm: float = 0.3
+    support_pitch: float = 0.5
+    cover_mm: float = 0.24
+    neighbours: int = 12
+    max_cells: int = 400
+
+    def __post_init__(self) -> None:
+        if not (self.cell_mm > 0 and self.support_pitch > 0 and self.cover_mm > 0):
+            raise NurbscanError("CAD set: cell_mm, support_pitch and cover_mm must be > 0")
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class CadSet:
+    """The CAD surface set.
+
+    Attributes
+    ----------
+    surfaces : list of dict
+        ``view``, ``patch``, ``rect`` (``[u0, u1, v0, v1]``, the Gordon patch's parameters)
+        and ``surface`` (the exact sub-surface, NurbsSurface).
+    info : dict
+        Counts and areas: ``patches``, ``patches_kept``, ``surfaces``, ``cells``,
+        ``cells_kept``, ``cells_unsupported``, ``cells_covered``, ``area_mm2`` (kept cells),
+        ``pitch_mm``, ``options``.
+    """
+
+    surfaces: list
+    info: dict = field(default_factory=dict)
+
+
+def cad_set(model, rig=None, options: CadOptions | None = None, progress=None) -> CadSet:
+    """The non-overlapping CAD surface set of a merged model (module notes, steps 1-5).
+
+    Parameters
+    ----------
+    model : nurbscan.reconstruct.Model
+        Registered views in the object frame, with their edge points.
+    rig : nurbscan.camera.Rig, optional
+        For the cameras' centres (frontality); without it patches are ranked by residual.
+    options : CadOptions, optional
+    progress : callable, optional
+
+    Returns
+    -------
+    CadSet
+    """
+    from .fusion import _camera_centres, _pitch
+
+    opt = options or CadOptions()
+    say = progress or (lambda _m: None)
+    gordon = model.surfaces_of("gordon")
+    if not gordon:
+        raise NurbscanError("CAD set: the model has no Gordon patches")
+    pitch = _pitch(model)
+    cells = [_cells(s["surface"], opt) for s in gordon]
+    P = np.concatenate([c["points"] for c in cells])
+    N = np.concatenate([c["normals"] for c in cells])
+    owner = np.concatenate([np.full(len(c["points"]), k) for k, c in enumerate(cells)])
+    view = np.array([int(s["view"]) for s in gordon])
+    supported = _supported(model, P, view[owner], opt.support_pitch * pitch)
+    score = _scores(model, rig, gordon, cells, P, N, owner, view, pitch, _camera_centres)
+    covered = _covered(P, N, owner, view, score, supported, opt)
+    keep = supported & ~covered
+    out, at = [], 0
+    for s, c in zip(gordon, cells, strict=True):
+        n = len(c["points"])
+        mask = keep[at:at + n].reshape(c["shape"])
+        at += n
+        for (i0, i1, j0, j1) in _rectangles(mask):
+            rect = [float(c["u"][i0]), float(c["u"][i1]), float(c["v"][j0]), float(c["v"][j1])]
+            out.append({"view": int(s["view"]), "patch": int(s["patch"]), "rect": rect,
+                        "surface": sub_surface(s["surface"], rect[:2], rect[2:])})
+    area = np.concatenate([c["area"] for c in cells])
+    info = {"patches": len(gordon), "patches_kept": len({(d["view"], d["patch"]) for d in out}),
+            "surfaces": len(out), "cells": int(len(P)), "cells_kept": int(keep.sum()),
+            "cells_unsupported": int((~supported).sum()),
+            "cells_covered": int((covered & supported).sum()),
+            "area_mm2": float(area[keep].sum()), "area_all_mm2": float(area.sum()),
+            "pitch_mm": pitch, "options": opt.to_dict()}
+    say(f"CAD set: {info['surfaces']} surfaces from {info['patches_kept']} of "
+        f"{info['patches']} Gordon patches; {info['cells_unsupported']} of {info['cells']} "
+        f"cells past the data cut, {info['cells_covered']} under a better view's patch")
+    return CadSet(out, info)
+
+
+# ---------------------------------------------------------------------------- steps
+def _cells(S: NurbsSurface, opt: CadOptions) -> dict:
+    """The patch's cell grid: cell boundaries ``u`` (nu + 1,), ``v`` (nv + 1,), centres'
+    points and normals (nu * nv, 3), areas (nu * nv,) and ``shape`` (nu, nv)."""
+    (u0, u1), (v0, v1) = S.domain
+    t = np.linspace(0.0, 1.0, 9)
+    G = S.evaluate_grid(u0 + (u1 - u0) * t, v0 + (v1 - v0) * t)
+    lu = np.linalg.norm(np.diff(G, axis=0), axis=2).sum(0).max()
+    lv = np.linalg.norm(np.diff(G, axis=1), axis=2).sum(1).max()
+    nu = int(np.clip(np.ceil(lu / opt.cell_mm), 1, opt.max_cells))
+    nv = int(np.clip(np.ceil(lv / opt.cell_mm), 1, opt.max_cells))
+    u, v = np.linspace(u0, u1, nu + 1), np.linspace(v0, v1, nv + 1)
+    uc, vc = 0.5 * (u[:-1] + u[1:]), 0.5 * (v[:-1] + v[1:])
+    uu, vv = np.meshgrid(uc, vc, indexing="ij")
+    D = S.derivatives(uu.ravel(), vv.ravel(), 1)
+    cross = np.cross(D[1, 0], D[0, 1])
+    jac = np.linalg.norm(cross, axis=1)
+    Nn = cross / np.maximum(jac, 1e-300)[:, None]
+    area = jac * (u[1] - u[0]) * (v[1] - v[0])
+    return {"u": u, "v": v, "points": D[0, 0], "normals": Nn, "area": area,
+            "shape": (nu, nv)}
+
+
+def _supported(model, P: np.ndarray, pview: np.ndarray, reach: float) -> np.ndarray:
+    """Cells within ``reach`` mm of an edge point of their own view."""
+    edges = np.asarray(model.edge_points, float).reshape(-1, 3)
+    ev = np.asarray(model.edge_view, int)
+    if len(edges) == 0:
+        return np.ones(len(P), bool)
+    ok = np.zeros(len(P), bool)
+    for v in np.unique(pview):
+        sel = pview == v
+        E = edges[ev == v]
+        if len(E):
+            d, _ = cKDTree(E).query(P[sel], distance_upper_bound=reach)
+            ok[sel] = np.isfinite(d)
+    return ok
+
+
+def _scores(model, rig, gordon, cells, P, N, owner, view, pitch, centres_of) -> np.ndarray:
+    """Per patch ``cos(theta) - rms / pitch`` (module notes, step 3)."""
+    centres = centres_of(model, rig) if rig is not None else {}
+    n_p = len(gordon)
+    cos = np.zeros(n_p)
+    if centres:
+        C = np.array([centres.get(int(v), np.full(3, np.nan)) for v in view])[owner]
+        d = C - P
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+        c = np.abs((d * N).sum(1))
+        c = np.where(np.isfinite(c), c, 0.0)
+        cos = np.bincount(owner, c, n_p) / np.maximum(np.bincount(owner, None, n_p), 1)
+    rms = np.zeros(n_p)
+    edges = np.asarray(model.edge_points, float).reshape(-1, 3)
+    ev = np.asarray(model.edge_view, int)
+    for v in np.unique(view):
+        mine = np.flatnonzero(view[owner] == v)
+        E = edges[ev == v]
+        if len(E) == 0 or len(mine) == 0:
+            continue
+        d, i = cKDTree(P[mine]).query(E, distance_upper_bound=pitch)
+        ok = np.isfinite(d)
+        j = mine[i[ok]]
+        r = ((E[ok] - P[j]) * N[j]).sum(1)
+        s2 = np.bincount(owner[j], r * r, n_p)
+        cnt = np.bincount(owner[j], None, n_p)
+        has = (cnt > 0) & (view == v)
+        rms[has] = np.sqrt(s2[has] / cnt[has])
+    return cos - rms / pitch
+
+
+def _covered(P, N, owner, view, score, supported, opt: CadOptions) -> np.ndarray:
+    """Cells on which a supported cell of a better patch of another view lies."""
+    idx = np.flatnonzero(supported)
+    out = np.zeros(len(P), bool)
+    if len(idx) < 2:
+        return out
+    tree = cKDTree(P[idx])
+    k = min(opt.neighbours, len(idx))
+    d, j = tree.query(P[idx], k=k, distance_upper_bound=opt.cover_mm)
+    ok = np.isfinite(d)
+    jj = idx[np.where(ok, j, 0)]
+    me = idx[:, None]
+    other = ok & (owner[jj] != owner[me])
+    agree = (N[jj] * N[me]).sum(-1) > 0.5
+    # better: higher score, ties to the lower patch number
+    s_me, s_o = score[owner[me]], score[owner[jj]]
+    better = (s_o > s_me) | ((s_o == s_me) & (owner[jj] < owner[me]))
+    out[idx] = (other & agree & better).any(1)
+    return out
+
+
+def _rectangles(mask: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """Maximal row-run rectangles of a boolean cell mask ``(nu, nv)``: ``(i0, i1, j0, j1)``,
+    cell boundary indices, covering exactly the True cells."""
+    out = []
+    open_runs: dict[tuple[int, int], int] = {}
+    nu = mask.shape[0]
+    for i in range(nu + 1):
+        runs = set()
+        if i < nu:
+            row = np.concatenate([[False], mask[i], [False]])
+            dif = np.flatnonzero(np.diff(row.astype(np.int8)))
+            runs = set(zip(dif[::2].tolist(), dif[1::2].tolist(), strict=True))
+        for r in list(open_runs):
+            if r not in runs:
+                out.append((open_runs.pop(r), i, r[0], r[1]))
+        for r in runs:
+            open_runs.setdefault(r, i)
+    return out
+
+
+def sub_surface(S: NurbsSurface, u_range, v_range) -> NurbsSurface:
+    """The exact part of ``S`` over ``u_range x v_range``: knots inserted to multiplicity
+    ``p`` at the ends (Piegl and Tiller A5.1 applied to every row of the homogeneous net)
+    and the control net cut there."""
+    Pw = S.homogeneous
+    U, p = np.asarray(S.knots_u, float), S.degree_u
+    Uu, Pw = _cut(p, U, Pw, *u_range)
+    V, q = np.asarray(S.knots_v, float), S.degree_v
+    Vv, Qw = _cut(q, V, Pw.transpose(1, 0, 2), *v_range)
+    return NurbsSurface.from_homogeneous(p, q, Uu, Vv, Qw.transpose(1, 0, 2))
+
+
+def _cut(p: int, U: np.ndarray, Pw: np.ndarray, a: float, b: float):
+    """Knot vector and net rows of the part ``[a, b]`` of a B-spline in its first index."""
+    n, m, d = Pw.shape
+    flat = Pw.reshape(n, m * d)
+    for t in (a, b):
+        if U[p] < t < U[-p - 1]:
+            s = int(np.count_nonzero(U == t))
+            if s < p:
+                U, flat = insert_knot_h(p, U, flat, float(t), p - s)
+    i0 = int(np.searchsorted(U, a, side="right")) - 1  # last knot <= a
+    i0 = min(max(i0, p), len(U) - p - 2)
+    i1 = int(np.searchsorted(U, b, side="left"))  # first knot >= b
+    i1 = max(min(i1, len(U) - p - 1), i0 + 1)
+    # control points of the span range [U[i0], U[i1]]: indices i0 - p .. i1 - 1
+    rows = flat[i0 - p:i1]
+    knots = np.concatenate([[a] * (p + 1), U[i0 + 1:i1], [b] * (p + 1)])
+    return knots, rows.reshape(-1, m, d)
+
+
+def overlap_area(surfaces: list, n: int = 12, tol: float = 0.1) -> dict:
+    """Area of the CAD surfaces that lies on another surface of the set (an oracle of the
+    set's own geometry, for tests and figures).
+
+    Every surface is sampled on an ``n x n`` grid of cell centres weighted by their areas;
+    a sample lies on surface ``B`` when its closest point on ``B`` (Newton point inversion,
+    Piegl and Tiller section 6.1, parameters clamped to ``B``'s domain) is within ``tol`` mm
+    and strictly inside ``B``'s domain (a sample next to ``B``'s border projects onto it).
+
+    Returns ``{"overlap_mm2", "area_mm2", "share"}``.
+    """
+    samples = []
+    for k, d in enumerate(surfaces):
+        S = d["surface"]
+        (u0, u1), (v0, v1) = S.domain
+        du, dv = (u1 - u0) / n, (v1 - v0) / n
+        uc = u0 + du * (np.arange(n) + 0.5)
+        vc = v0 + dv * (np.arange(n) + 0.5)
+        uu, vv = np.meshgrid(uc, vc, indexing="ij")
+        D = S.derivatives(uu.ravel(), vv.ravel(), 1)
+        a = np.linalg.norm(np.cross(D[1, 0], D[0, 1]), axis=1) * du * dv
+        samples.append((D[0, 0], a, np.full(n * n, k)))
+    X = np.concatenate([s[0] for s in samples])
+    A = np.concatenate([s[1] for s in samples])
+    owner = np.concatenate([s[2] for s in samples])
+    # candidate surfaces: those with a sample within reach
+    reach = 2.0 * float(np.sqrt(np.median(A))) + tol
+    d, j = cKDTree(X).query(X, k=16, distance_upper_bound=reach)
+    ok = np.isfinite(d)
+    cand = owner[np.where(ok, j, 0)]
+    ok &= cand != owner[:, None]
+    rows, cols = np.nonzero(ok)
+    key = np.unique(np.column_stack([cand[rows, cols], rows]), axis=0)
+    on = np.zeros(len(X), bool)
+    starts = np.flatnonzero(np.r_[True, key[1:, 0] != key[:-1, 0]])
+    for a, b in zip(starts, np.r_[starts[1:], len(key)], strict=True):
+        pts = key[a:b, 1]
+        pts = pts[~on[pts]]
+        if len(pts):
+            on[pts] |= _inside(surfaces[key[a, 0]]["surface"], X[pts], tol)
+    return {"overlap_mm2": float(A[on].sum()), "area_mm2": float(A.sum()),
+            "share": float(A[on].sum() / max(A.sum(), 1e-300))}
+
+
+def _inside(S: NurbsSurface, X: np.ndarray, tol: float, iters: int = 12) -> np.ndarray:
+    """Whether each point's closest point on ``S`` is within ``tol`` and strictly inside
+    its domain (Newton on ``(S - X) . S_u = (S - X) . S_v = 0``, clamped)."""
+    (u0, u1), (v0, v1) = S.domain
+    k = 8
+    t = (np.arange(k) + 0.5) / k
+    uu, vv = np.meshgrid(u0 + (u1 - u0) * t, v0 + (v1 - v0) * t, indexing="ij")
+    G = S.evaluate(uu.ravel(), vv.ravel())
+    i = cKDTree(G).query(X)[1]
+    u, v = uu.ravel()[i], vv.ravel()[i]
+    for _ in range(iters):
+        D = S.derivatives(u, v, 2)
+        r = D[0, 0] - X
+        Su, Sv, Suu, Suv, Svv = D[1, 0], D[0, 1], D[2, 0], D[1, 1], D[0, 2]
+        f = (r * Su).sum(1)
+        g = (r * Sv).sum(1)
+        a = (Su * Su).sum(1) + (r * Suu).sum(1)
+        b = (Su * Sv).sum(1) + (r * Suv).sum(1)
+        c = (Sv * Sv).sum(1) + (r * Svv).sum(1)
+        det = a * c - b * b
+        det = np.where(np.abs(det) < 1e-300, 1e-300, det)
+        du = (c * f - b * g) / det
+        dv = (a * g - b * f) / det
+        u = np.clip(u - du, u0, u1)
+        v = np.clip(v - dv, v0, v1)
+    d = np.linalg.norm(S.evaluate(u, v) - X, axis=1)
+    eu, ev = 1e-6 * (u1 - u0), 1e-6 * (v1 - v0)
+    inside = (u > u0 + eu) & (u < u1 - eu) & (v > v0 + ev) & (v < v1 - ev)
+    return inside & (d < tol)
