@@ -36,7 +36,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import NurbscanError
 
-__all__ = ["Alignment", "GlobalOptions", "align_surfaces", "motion_difference"]
+__all__ = ["Alignment", "GlobalOptions", "align_surfaces", "motion_difference", "overlap_rms"]
 
 
 @dataclass(frozen=True)
@@ -57,8 +57,15 @@ class GlobalOptions:
         Voxel (mm) of the ICP's samples.
     icp_distances : tuple of float
         ICP correspondence distance at each level, coarse to fine (mm).
+    fine_candidates : int
+        Distinct candidates (the best overlapping after the coarse ICP levels, on the
+        thinned clouds) refined over the fine levels.
     overlap_distance : float
-        Distance (mm) within which a point of one surface counts as overlapping the other.
+        Distance (mm) within which a point of one surface counts as overlapping the other:
+        its distance to the plane of its nearest sample of the other surface (normal of that
+        sample), the nearest sample at most ``overlap_reach`` mm away (the samples' spacing).
+    overlap_reach : float
+        See ``overlap_distance``.
     min_overlap : float
         Smallest overlap share (of the smaller surface) that is an alignment.
     max_rms : float
@@ -70,13 +77,15 @@ class GlobalOptions:
         Candidates farther apart than this (degrees, mm) are distinct alignments.
     """
 
-    voxel: float = 3.0
-    feature_radius: float = 5.0
-    trials: int = 4
+    voxel: float = 5.0
+    feature_radius: float = 4.0
+    trials: int = 6
     ransac_iterations: int = 50_000
     icp_voxel: float = 1.0
     icp_distances: tuple[float, ...] = (12.0, 6.0, 3.0, 1.5, 0.8, 0.4)
+    fine_candidates: int = 3
     overlap_distance: float = 0.5
+    overlap_reach: float = 2.0
     min_overlap: float = 0.15
     max_rms: float = 0.25
     ambiguity: float = 0.9
@@ -210,8 +219,8 @@ def align_surfaces(source: tuple, target: tuple, options: GlobalOptions | None =
     cands = _refine(o3d, s_down, t_down, s_icp, t_icp, raw, opt)
     say(f"global registration: {len(raw)} RANSAC candidates ({t1 - t0:.1f} s), "
         f"{len(cands)} distinct after ICP ({time.perf_counter() - t1:.1f} s)")
-    scored = _score(np.asarray(src.points), np.asarray(tgt.points), np.asarray(tgt.normals),
-                    cands, opt)
+    scored = _score(np.asarray(src.points), np.asarray(src.normals), np.asarray(tgt.points),
+                    np.asarray(tgt.normals), cands, opt)
     best = scored[0]
     warnings = []
     ambiguous = False
@@ -296,8 +305,8 @@ def _refine(o3d, s_down, t_down, s_icp, t_icp, raw: list, opt: GlobalOptions) ->
             T = np.asarray(r.transformation, float).copy()
         return T
 
-    coarse = [d for d in opt.icp_distances if d >= 2 * opt.voxel]
-    fine = [d for d in opt.icp_distances if d < 2 * opt.voxel]
+    coarse = [d for d in opt.icp_distances if d >= 0.5 * opt.voxel]
+    fine = [d for d in opt.icp_distances if d < 0.5 * opt.voxel]
     out: list = []
     for T0 in raw:
         T = icp(s_down, t_down, T0, coarse)
@@ -308,14 +317,42 @@ def _refine(o3d, s_down, t_down, s_icp, t_icp, raw: list, opt: GlobalOptions) ->
                 break
         else:
             out.append({"matrix": T, "runs": 1})
+    # only the candidates that overlap best on the thinned clouds go on to the fine levels:
+    # the best and its runner-up decide the alignment and its ambiguity
+    Ps, Pt = np.asarray(s_down.points), np.asarray(t_down.points)
+    Nt = np.asarray(t_down.normals)
+    tree_t = cKDTree(Pt)
+    for c in out:
+        c["coarse_overlap"] = overlap_rms(Ps, c["matrix"], Pt, Nt, 0.3 * opt.voxel,
+                                          1.5 * opt.voxel, tree_t)[0]
+    out.sort(key=lambda c: -c["coarse_overlap"])
+    out = out[:opt.fine_candidates]
     for c in out:
         c["matrix"] = icp(s_icp, t_icp, c["matrix"], fine)
     return out
 
 
-def _score(Ps, Pt, Nt, cands: list, opt: GlobalOptions) -> list:
-    """Overlap shares and RMS over the overlap of each candidate, best (overlap) first, with
-    each candidate's angle and translation from the best."""
+def overlap_rms(P: np.ndarray, T: np.ndarray, Q: np.ndarray, NQ: np.ndarray,
+                distance: float, reach: float, tree=None) -> tuple[float, float]:
+    """Share of the points ``P`` (N, 3), moved by ``T`` (4 x 4), within ``distance`` (mm) of
+    the surface sampled by ``Q`` with normals ``NQ`` (the plane of the nearest sample, at most
+    ``reach`` mm away), and the RMS point-to-plane distance over that overlap (mm)."""
+    from scipy.spatial import cKDTree
+
+    X = P @ T[:3, :3].T + T[:3, 3]
+    d, i = (tree or cKDTree(Q)).query(X, distance_upper_bound=reach)
+    near = np.flatnonzero(np.isfinite(d))
+    plane = np.abs(np.einsum("ij,ij->i", X[near] - Q[i[near]], NQ[i[near]]))
+    ok = plane <= distance
+    if not ok.any():
+        return 0.0, float("inf")
+    return float(ok.sum() / max(len(P), 1)), float(np.sqrt(np.mean(plane[ok] ** 2)))
+
+
+def _score(Ps, Ns, Pt, Nt, cands: list, opt: GlobalOptions) -> list:
+    """Overlap shares and RMS over the overlap of each candidate (:func:`overlap_rms`, both
+    ways), best (overlap of the smaller surface) first, with each candidate's angle and
+    translation from the best."""
     if not cands:
         return [{"matrix": np.eye(4), "overlap": 0.0, "overlap_source": 0.0,
                  "overlap_target": 0.0, "rms_mm": float("inf"), "runs": 0,
@@ -324,21 +361,13 @@ def _score(Ps, Pt, Nt, cands: list, opt: GlobalOptions) -> list:
     scored = []
     for c in cands:
         T = c["matrix"]
-        Q = Ps @ T[:3, :3].T + T[:3, 3]
-        d, i = tree_t.query(Q, distance_upper_bound=opt.overlap_distance)
-        ov_s = np.isfinite(d)
-        plane = np.abs(np.einsum("ij,ij->i", Q[ov_s] - Pt[i[ov_s]], Nt[i[ov_s]]))
-        # the target's share: its points within the distance of the moved source
-        Ti = np.linalg.inv(T)
-        back = Pt @ Ti[:3, :3].T + Ti[:3, 3]
-        dt, _ = tree_s.query(back, distance_upper_bound=opt.overlap_distance)
-        ov_t = float(np.isfinite(dt).mean())
-        share_s = float(ov_s.mean())
+        share_s, rms = overlap_rms(Ps, T, Pt, Nt, opt.overlap_distance, opt.overlap_reach,
+                                   tree_t)
+        ov_t, _ = overlap_rms(Pt, np.linalg.inv(T), Ps, Ns, opt.overlap_distance,
+                              opt.overlap_reach, tree_s)
         smaller = share_s if len(Ps) <= len(Pt) else ov_t
         scored.append({"matrix": T, "overlap": smaller, "overlap_source": share_s,
-                       "overlap_target": ov_t,
-                       "rms_mm": float(np.sqrt(np.mean(plane ** 2))) if plane.size else
-                       float("inf"), "runs": c["runs"]})
+                       "overlap_target": ov_t, "rms_mm": rms, "runs": c["runs"]})
     scored.sort(key=lambda c: (-c["overlap"], c["rms_mm"]))
     for c in scored:
         ang, tr = motion_difference(scored[0]["matrix"], c["matrix"], 0.0)
