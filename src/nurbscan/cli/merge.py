@@ -34,6 +34,10 @@ def register(sub) -> None:
                         "out of the alignment (default 2 mm)")
     p.add_argument("--no-refine", action="store_true",
                    help="keep the global alignment (no joint refinement of all views)")
+    p.add_argument("--max-misclosure", type=float, default=0.5, metavar="DEG",
+                   help="largest angle by which the jointly optimised poses may differ from a "
+                        "pair of views' own ICP result before the joint refinement is refused "
+                        "and the global alignment kept (default 0.5 degrees)")
     p.add_argument("--max-triangles", type=int, default=300_000,
                    help="triangle budget of the fused mesh (300000)")
     p.add_argument("--no-fuse", action="store_true", help="no fused mesh of the merged model")
@@ -51,6 +55,8 @@ def run(args: argparse.Namespace) -> int:
 
     if len(args.models) < 2:
         raise NurbscanError("at least two model folders are needed")
+    if not args.max_misclosure > 0:
+        raise NurbscanError(f"--max-misclosure {args.max_misclosure}: must be > 0 degrees")
     if not args.base_margin >= 0:
         raise NurbscanError(f"--base-margin {args.base_margin}: must be >= 0 mm")
     out = Path(args.output)
@@ -70,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
         model.meta["_folder"] = str(m)
         models.append(model)
     opt = PassOptions(base_margin=args.base_margin,
-                      registration=None if args.no_refine else RegistrationOptions(),
+                      registration=None if args.no_refine else RegistrationOptions(
+                          max_misclosure=args.max_misclosure),
                       fusion=None if args.no_fuse else FusionOptions(
                           max_triangles=args.max_triangles))
     merged, report = merge_passes(models, [str(m) for m in args.models], opt, progress=say)
