@@ -32,6 +32,9 @@ def register(sub) -> None:
     p.add_argument("--base-margin", type=float, default=2.0, metavar="MM",
                    help="height above each pass's table plane below which its surface is left "
                         "out of the alignment (default 2 mm)")
+    p.add_argument("--trials", type=int, default=6,
+                   help="RANSAC runs of the global registration, each a candidate alignment "
+                        "(default 6)")
     p.add_argument("--no-refine", action="store_true",
                    help="keep the global alignment (no joint refinement of all views)")
     p.add_argument("--max-misclosure", type=float, default=0.5, metavar="DEG",
@@ -50,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import NurbscanError
     from ..merge import RegistrationOptions
     from ..merge.fusion import FusionOptions
+    from ..merge.global_registration import GlobalOptions
     from ..merge.passes import PassOptions, merge_passes
     from ..reconstruct import load_model
 
@@ -75,7 +79,10 @@ def run(args: argparse.Namespace) -> int:
         model = load_model(m)
         model.meta["_folder"] = str(m)
         models.append(model)
+    if args.trials < 1:
+        raise NurbscanError(f"--trials {args.trials}: must be at least 1")
     opt = PassOptions(base_margin=args.base_margin,
+                      alignment=GlobalOptions(trials=args.trials),
                       registration=None if args.no_refine else RegistrationOptions(
                           max_misclosure=args.max_misclosure),
                       fusion=None if args.no_fuse else FusionOptions(
