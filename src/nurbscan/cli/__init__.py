@@ -23,6 +23,7 @@ COMMANDS = (
     "calibrate",
     "rig",
     "reconstruct",
+    "merge",
     "evaluate",
     "export",
     "batch",
@@ -38,7 +39,8 @@ def build_parser() -> argparse.ArgumentParser:
         description=(
             "Turn photographs of an object under a projected colour grid into 3-D NURBS "
             "curves and surfaces. Stages: pattern -> simulate (or real images) -> detect -> "
-            "calibrate -> reconstruct -> evaluate -> export / report; 'demo' runs them all."
+            "calibrate -> reconstruct (-> merge passes) -> evaluate -> export / report; "
+            "'demo' runs them all."
         ),
     )
     parser.add_argument("--version", action="version", version=f"nurbscan {__version__}")

@@ -37,6 +37,10 @@ def register(sub) -> None:
     p.add_argument("--width", type=int, default=None,
                    help="camera width in px (default 3072; smaller is a faster, coarser demo)")
     p.add_argument("--height", type=int, default=None, help="camera height in px (default 2304)")
+    p.add_argument("--passes", type=int, choices=(1, 2), default=1,
+                   help="turntable passes (1; 2: a second pass with the teapot on its side, "
+                        "DIR/scan-side/ and DIR/model-side/, merged with the first into "
+                        "DIR/merged/ and evaluated into DIR/evaluation-merged.json)")
     p.set_defaults(func=run)
 
 
@@ -87,6 +91,20 @@ def run(args: argparse.Namespace) -> int:
          ["report", str(model), "-o", str(out / "report.html"),
           "--evaluation", str(out / "evaluation.json")]),
     ]
+    if args.passes == 2:
+        side = out / "scan-side"
+        plan += [
+            ("simulate the second pass (the teapot on its side)",
+             ["simulate", "teapot", "--pose", "side", "-o", str(side), "--views",
+              str(args.views), "--seed", str(args.seed), "--no-calibration"] + size),
+            ("reconstruct the second pass",
+             ["reconstruct", str(side), "--calib", str(calib), "-o", str(out / "model-side")]),
+            ("merge the two passes (aligned without a prior)",
+             ["merge", str(model), str(out / "model-side"), "-o", str(out / "merged")]),
+            ("evaluate the merged model against the first pass's truth",
+             ["evaluate", str(out / "merged"), "--truth", str(scan / "truth"),
+              "-o", str(out / "evaluation-merged.json")]),
+        ]
     pending = None  # the export runs in a second process beside the evaluation and report
     for title, argv in plan:
         if argv[0] == "export":

@@ -20,7 +20,7 @@ def register(sub) -> argparse.ArgumentParser:
             "one line per image on stderr."
         ),
     )
-    p.add_argument("scene", help="teapot, sphere, cylinder, torus or plane")
+    p.add_argument("scene", help="teapot, blob, sphere, cylinder, torus or plane")
     p.add_argument("-o", "--output", required=True, help="scan folder to write")
     p.add_argument("--views", type=int, default=8, help="number of views (default 8)")
     p.add_argument("--rig", help="rig JSON file (default: the built-in rig)")
@@ -35,6 +35,11 @@ def register(sub) -> argparse.ArgumentParser:
                    help="albedo of the turntable's top, a matte disc of radius 150 mm under "
                         "the object (0..1; default 0.03, nearly black; e.g. 0.3 for a grey "
                         "table the grid is seen on)")
+    p.add_argument("--pose", default=None, metavar="POSE",
+                   help="resting pose of the object: upright, side, upside-down or RX,RY,RZ "
+                        "(degrees about x, then y, then z); the object is rotated, then set "
+                        "down on the table top (lowest point on it, centred on the axis) and "
+                        "the truth describes it so posed (default: the scene as defined)")
     p.add_argument("--no-calibration", action="store_true",
                    help="skip the calibration images")
     p.add_argument("--workers", type=int, default=2,
@@ -76,6 +81,10 @@ def run(args: argparse.Namespace) -> int:
         h = args.height or round(cam.height * args.width / cam.width)
         rig = scale_camera(rig, w, h)
     scene = make_scene(args.scene)
+    if args.pose is not None:
+        from ..simulate.pose import posed
+
+        scene = posed(scene, args.pose)
     settings = RenderSettings(bit_depth=args.bit_depth).with_noise_scale(args.noise)
     if args.table_albedo is not None:
         if not 0 <= args.table_albedo <= 1:
@@ -85,7 +94,8 @@ def run(args: argparse.Namespace) -> int:
     def progress(line: str) -> None:
         print(f"nurbscan simulate: {line}", file=sys.stderr, flush=True)
 
-    progress(f"rendering {args.scene} at {rig.camera.width} x {rig.camera.height} px, "
+    pose = "" if args.pose is None else f" ({args.pose})"
+    progress(f"rendering {args.scene}{pose} at {rig.camera.width} x {rig.camera.height} px, "
              f"{args.views} views, into {args.output}")
     simulate_scan(scene, args.output, views=args.views, rig=rig, settings=settings,
                   seed=args.seed, progress=progress, calibration=not args.no_calibration,

@@ -211,13 +211,15 @@ def fused_row(fused, scene, P: np.ndarray, vis: np.ndarray, gordon_covered: np.n
     -------
     dict
         The row's figures and ``coverage`` (share of the visible true samples within
-        ``cover_tol`` of the mesh, exact distances), ``parts`` (connected components of faces
-        sharing vertices), ``area_mm2`` (the mesh's), ``true_area_mm2`` (the whole true
-        surface), ``true_covered_area_mm2`` (true area within ``area_tol`` of the mesh, less
-        the band of width ``area_tol`` outside the mesh's open border: perimeter times
-        ``area_tol``), ``area_ratio`` (mesh area over it: 2 for a doubled layer),
-        ``gordon_covered_area_mm2`` (true area within ``cover_tol`` of the Gordon patches, as
-        ``coverage`` counts it) and ``area_ratio_gordon``.
+        ``cover_tol`` of the mesh, exact distances), ``whole_coverage`` (the same share of
+        the whole true surface, seen or not: what several passes add up to), ``parts``
+        (connected components of faces sharing vertices), ``area_mm2`` (the mesh's),
+        ``true_area_mm2`` (the whole true surface), ``true_covered_area_mm2`` (true area
+        within ``area_tol`` of the mesh, less the band of width ``area_tol`` outside the
+        mesh's open border: perimeter times ``area_tol``), ``area_ratio`` (mesh area over
+        it: 2 for a doubled layer), ``gordon_covered_area_mm2`` (true area within
+        ``cover_tol`` of the Gordon patches, as ``coverage`` counts it) and
+        ``area_ratio_gordon``.
     """
     import trimesh
 
@@ -243,6 +245,7 @@ def fused_row(fused, scene, P: np.ndarray, vis: np.ndarray, gordon_covered: np.n
             "max_sample_mm": float(d.max()), "p99_mm": float(np.percentile(d, 99)),
             "faces": int(len(F)), "vertices": int(len(V)), "parts": count_parts(F, len(V)),
             "coverage": float((covered & vis).sum() / max(vis.sum(), 1)),
+            "whole_coverage": float(covered.mean()),
             "area_mm2": area, "true_area_mm2": A_true, "perimeter_mm": perimeter,
             "area_tolerance_mm": area_tol, "true_covered_area_mm2": cov_area,
             "area_ratio": area / max(cov_area, 1e-9), "gordon_covered_area_mm2": g_area,
@@ -365,8 +368,11 @@ def format_table(ev: dict) -> str:
     lines += ["", f"Coverage of the turntable-visible true surface by Gordon patches: "
               f"{100 * ev['coverage']:.1f} % (within {ev['coverage_tolerance_mm']} mm).", ""]
     if fu is not None:
+        whole = fu.get("whole_coverage")
         lines += [f"Fused mesh: coverage {100 * fu['coverage']:.1f} % (within "
-                  f"{ev['coverage_tolerance_mm']} mm), {fu['parts']} connected parts, area "
+                  f"{ev['coverage_tolerance_mm']} mm)"
+                  + ("" if whole is None else f", {100 * whole:.1f} % of the whole true surface")
+                  + f", {fu['parts']} connected parts, area "
                   f"{fu['area_mm2']:.0f} mm^2 = {fu['area_ratio']:.3f} x the true area it covers "
                   f"({fu['true_covered_area_mm2']:.0f} mm^2), {fu['area_ratio_gordon']:.3f} x "
                   f"the true area the Gordon patches cover "

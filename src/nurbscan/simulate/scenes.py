@@ -1616,9 +1616,14 @@ class Plane(Scene):
 SCENES = {"teapot": Teapot, "sphere": Sphere, "cylinder": Cylinder, "torus": Torus,
           "plane": Plane}
 
+from .blob import Blob  # noqa: E402  (a Scene subclass in its own module, issue 33)
+
+SCENES["blob"] = Blob
+
 
 def make_scene(name: str, **params) -> Scene:
-    """Build a scene by name (``teapot``, ``sphere``, ``cylinder``, ``torus``, ``plane``).
+    """Build a scene by name (``teapot``, ``sphere``, ``cylinder``, ``torus``, ``plane``,
+    ``blob``).
 
     Raises
     ------
@@ -1642,8 +1647,13 @@ def scene_from_dict(d: dict) -> Scene:
     if not isinstance(d, dict) or d.get("type") != SCENE_TYPE:
         got = d.get("type") if isinstance(d, dict) else type(d).__name__
         raise NurbscanError(f"scene: expected a dict with type {SCENE_TYPE!r}, got {got!r}")
-    params = {k: v for k, v in d.items() if k not in ("type", "version", "name")}
+    params = {k: v for k, v in d.items() if k not in ("type", "version", "name", "pose")}
     for key in ("center", "point", "normal"):
         if key in params and isinstance(params[key], list):
             params[key] = tuple(params[key])
-    return make_scene(d.get("name", ""), **params)
+    scene = make_scene(d.get("name", ""), **params)
+    if d.get("pose") is not None:  # a resting pose on the table (nurbscan.simulate.pose)
+        from .pose import pose_from_dict
+
+        return pose_from_dict(scene, d["pose"])
+    return scene

@@ -1,0 +1,142 @@
+"""``nurbscan merge``: several turntable passes of one object into one model (issue 33)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def register(sub) -> None:
+    """Add the ``merge`` sub-command."""
+    p = sub.add_parser(
+        "merge", help="Merge turntable passes of one object (turned over) into one model",
+        description=(
+            "Align two or more model folders of one object, each a turntable pass with the "
+            "object in another resting pose, with no prior: the passes' fused surfaces (the "
+            "table and what lies below the object's base left out) are registered globally "
+            "(FPFH features, RANSAC, point-to-plane ICP), then all views of all passes are "
+            "refined jointly (pairwise ICP, pose graph) and fused into one mesh. Writes a "
+            "model folder in the first pass's frame (view v of pass k is view 100 k + v) "
+            "that export, evaluate and report read, with alignment.json (the transforms, "
+            "RMS over the overlap, overlap shares, warnings). Passes of different objects "
+            "or with too little overlap: an error, nothing written."))
+    p.add_argument("models", type=Path, nargs="+", metavar="MODEL",
+                   help="model folders (with model.json and fused.ply), the first fixes the "
+                        "frame")
+    p.add_argument("-o", "--output", type=Path, required=True, help="merged model folder")
+    p.add_argument("--base-margin", type=float, default=2.0, metavar="MM",
+                   help="height above each pass's table plane below which its surface is left "
+                        "out of the alignment (default 2 mm)")
+    p.add_argument("--trials", type=int, default=6,
+                   help="RANSAC runs of the global registration, each a candidate alignment "
+                        "(default 6)")
+    p.add_argument("--no-refine", action="store_true",
+                   help="keep the global alignment (no joint refinement of all views)")
+    p.add_argument("--max-misclosure", type=float, default=0.5, metavar="DEG",
+                   help="largest angle by which the jointly optimised poses may differ from a "
+                        "pair of views' own ICP result before the joint refinement is refused "
+                        "and the global alignment kept (default 0.5 degrees)")
+    p.add_argument("--max-triangles", type=int, default=300_000,
+                   help="triangle budget of the fused mesh (300000)")
+    p.add_argument("--no-fuse", action="store_true", help="no fused mesh of the merged model")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Merge ``args.models`` into ``args.output``; print the alignment."""
+    from ..errors import NurbscanError
+    from ..merge import RegistrationOptions
+    from ..merge.fusion import FusionOptions
+    from ..merge.global_registration import GlobalOptions
+    from ..merge.passes import PassOptions, merge_passes
+    from ..reconstruct import load_model
+
+    if len(args.models) < 2:
+        raise NurbscanError("at least two model folders are needed")
+    if not args.max_misclosure > 0:
+        raise NurbscanError(f"--max-misclosure {args.max_misclosure}: must be > 0 degrees")
+    if not args.base_margin >= 0:
+        raise NurbscanError(f"--base-margin {args.base_margin}: must be >= 0 mm")
+    out = Path(args.output)
+    for m in args.models:
+        if m.resolve() == out.resolve():
+            raise NurbscanError(f"{out}: the output must not be one of the input models")
+    t0 = time.perf_counter()
+
+    def say(msg: str) -> None:
+        if not args.quiet:
+            print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    models = []
+    for m in args.models:
+        say(f"load {m}")
+        model = load_model(m)
+        model.meta["_folder"] = str(m)
+        models.append(model)
+    if args.trials < 1:
+        raise NurbscanError(f"--trials {args.trials}: must be at least 1")
+    opt = PassOptions(base_margin=args.base_margin,
+                      alignment=GlobalOptions(trials=args.trials),
+                      registration=None if args.no_refine else RegistrationOptions(
+                          max_misclosure=args.max_misclosure),
+                      fusion=None if args.no_fuse else FusionOptions(
+                          max_triangles=args.max_triangles))
+    merged, report = merge_passes(models, [str(m) for m in args.models], opt, progress=say)
+    for m in models:
+        m.meta.pop("_folder", None)
+    merged.meta.pop("_folder", None)
+    _save_folder(merged, report, out)
+    if args.quiet:
+        for w in report["warnings"]:
+            print(f"nurbscan merge: warning: {w}", file=sys.stderr)
+    for p in report["passes"][1:]:
+        g = p["global"]
+        print(f"{p['name']} -> {report['passes'][0]['name']}: rotation {g['rotation_deg']:.4f} "
+              f"degrees about {g['rotation_axis']}, translation {g['translation_mm']} mm; "
+              f"overlap {100 * p['overlap']:.1f} %, RMS {p['rms_mm']:.4f} mm over the overlap"
+              + (" (AMBIGUOUS)" if g["ambiguous"] else ""))
+        print("  transform (after the joint refinement): "
+              + json.dumps([[round(x, 6) for x in r] for r in p["refined_matrix"]]))
+    n = merged.to_dict()["counts"]
+    print(f"wrote {out}: {len(merged.views)} views of {len(models)} passes, {n['gordon']} "
+          f"Gordon patches" + ("" if merged.fused is None else
+                              f", fused mesh of {len(merged.fused.faces)} triangles")
+          + f", alignment in {out / 'alignment.json'}")
+    return 0
+
+
+def _save_folder(model, report: dict, out: Path) -> None:
+    """Write the model and ``alignment.json`` into a temporary folder beside ``out`` and
+    rename it to ``out`` (an existing ``out`` is replaced only once the new one is
+    complete)."""
+    from ..errors import NurbscanError
+    from ..io import write_json
+
+    out = Path(out)
+    parent = out.resolve().parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=parent))
+    except OSError as exc:
+        raise NurbscanError(f"{out}: cannot write ({exc.strerror})") from None
+    try:
+        model.save(tmp)
+        write_json(tmp / "alignment.json", {"type": "nurbscan.alignment", "version": 1,
+                                            **report})
+        old = None
+        if out.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=parent))
+            old.rmdir()
+            out.rename(old)
+        tmp.rename(out)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise

@@ -1,0 +1,377 @@
+"""Global registration of two scans of one object without a prior (issue 33).
+
+A second turntable pass sees the object turned over: its object frame is the first pass's
+moved by an unknown rigid motion, possibly a half turn. :func:`align_surfaces` finds it from
+the two passes' surfaces alone, as desktop scanners do:
+
+1. **Features.** Each surface is thinned to a voxel grid and described by Fast Point Feature
+   Histograms (FPFH; Rusu, Blodow and Beetz 2009; Open3D ``compute_fpfh_feature``).
+2. **RANSAC** over feature correspondences (Open3D
+   ``registration_ransac_based_on_feature_matching``, edge-length and distance checkers),
+   run ``trials`` times with different seeds: a candidate motion per run.
+3. **ICP.** Each candidate is refined by point-to-plane ICP (Chen and Medioni 1992; Open3D
+   ``registration_icp``), coarse to fine, on denser samples; candidates that converge to the
+   same motion are merged.
+4. **Score.** Each refined candidate's overlap (the share of the smaller surface within
+   ``overlap_distance`` of the other) and the RMS point-to-plane distance over that overlap.
+   The best overlap wins. A second, distinct candidate (more than ``distinct_angle`` degrees
+   or ``distinct_translation`` mm away) that overlaps nearly as well (``ambiguity`` of the
+   best) makes the alignment ambiguous: a symmetric object (a surface of revolution, a
+   sphere) admits several alignments and the data cannot choose.
+
+Too small an overlap or too large an RMS means that the two surfaces are not two views of one
+object (or overlap too little to be aligned): :class:`~nurbscan.errors.NurbscanError`.
+
+Units: mm, degrees in the report; transforms are 4 x 4, ``X_target = T X_source``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from ..errors import NurbscanError
+
+__all__ = ["Alignment", "GlobalOptions", "align_surfaces", "motion_difference", "overlap_rms"]
+
+
+@dataclass(frozen=True)
+class GlobalOptions:
+    """Settings of :func:`align_surfaces`, by step.
+
+    Attributes
+    ----------
+    voxel : float
+        Voxel (mm) the surfaces are thinned to for the features and RANSAC.
+    feature_radius : float
+        FPFH neighbourhood radius, in voxels.
+    trials : int
+        RANSAC runs (seeds 0 .. trials - 1), each a candidate.
+    ransac_iterations : int
+        RANSAC iterations per run.
+    icp_voxel : float
+        Voxel (mm) of the ICP's samples.
+    icp_distances : tuple of float
+        ICP correspondence distance at each level, coarse to fine (mm).
+    fine_candidates : int
+        Distinct candidates (the best overlapping after the coarse ICP levels, on the
+        thinned clouds) refined over the fine levels.
+    overlap_distance : float
+        Distance (mm) within which a point of one surface counts as overlapping the other:
+        its distance to the plane of its nearest sample of the other surface (normal of that
+        sample), the nearest sample at most ``overlap_reach`` mm away (the samples' spacing).
+    overlap_reach : float
+        See ``overlap_distance``.
+    min_overlap : float
+        Smallest overlap share (of the smaller surface) that is an alignment.
+    max_rms : float
+        Largest RMS distance over the overlap (mm) that is an alignment.
+    ambiguity : float
+        A distinct candidate whose overlap is at least this share of the best's makes the
+        alignment ambiguous.
+    distinct_angle, distinct_translation : float
+        Candidates farther apart than this (degrees, mm) are distinct alignments.
+    """
+
+    voxel: float = 5.0
+    feature_radius: float = 4.0
+    trials: int = 6
+    ransac_iterations: int = 50_000
+    icp_voxel: float = 1.0
+    icp_distances: tuple[float, ...] = (12.0, 6.0, 3.0, 1.5, 0.8, 0.4)
+    fine_candidates: int = 3
+    overlap_distance: float = 0.5
+    overlap_reach: float = 2.0
+    min_overlap: float = 0.15
+    max_rms: float = 0.25
+    ambiguity: float = 0.9
+    distinct_angle: float = 2.0
+    distinct_translation: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not (self.voxel > 0 and self.icp_voxel > 0 and self.overlap_distance > 0):
+            raise NurbscanError("global registration: voxel sizes and distances must be > 0")
+        if self.trials < 1 or not self.icp_distances:
+            raise NurbscanError("global registration: at least one trial and one ICP level")
+        if not 0 < self.min_overlap <= 1:
+            raise NurbscanError(f"global registration: min_overlap {self.min_overlap} must be "
+                                "in (0, 1]")
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["icp_distances"] = list(self.icp_distances)
+        return d
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """What :func:`align_surfaces` found.
+
+    Attributes
+    ----------
+    matrix : ndarray (4, 4)
+        ``X_target = T X_source``.
+    rms_mm : float
+        RMS point-to-plane distance over the overlap, mm.
+    overlap : float
+        Share of the smaller surface within ``overlap_distance`` of the other.
+    overlap_source, overlap_target : float
+        The same share of each surface.
+    candidates : list of dict
+        The distinct refined candidates, best first: ``matrix``, ``overlap``, ``rms_mm``,
+        ``angle_deg`` and ``translation_mm`` from the best, ``runs`` (RANSAC runs that gave it).
+    ambiguous : bool
+        A distinct candidate overlaps nearly as well as the best (module notes).
+    warnings : list of str
+    """
+
+    matrix: np.ndarray
+    rms_mm: float
+    overlap: float
+    overlap_source: float
+    overlap_target: float
+    candidates: list
+    ambiguous: bool
+    warnings: list
+
+    @property
+    def angle_deg(self) -> float:
+        """Rotation angle of the transform, degrees."""
+        return float(np.degrees(np.linalg.norm(
+            Rotation.from_matrix(self.matrix[:3, :3]).as_rotvec())))
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict (mm, degrees)."""
+        rv = Rotation.from_matrix(self.matrix[:3, :3]).as_rotvec()
+        return {"matrix": np.round(self.matrix, 12).tolist(),
+                "rotation_deg": round(float(np.degrees(np.linalg.norm(rv))), 6),
+                "rotation_axis": (rv / max(np.linalg.norm(rv), 1e-300)).round(9).tolist(),
+                "translation_mm": np.round(self.matrix[:3, 3], 6).tolist(),
+                "rms_mm": round(self.rms_mm, 6), "overlap": round(self.overlap, 6),
+                "overlap_source": round(self.overlap_source, 6),
+                "overlap_target": round(self.overlap_target, 6),
+                "ambiguous": self.ambiguous, "warnings": list(self.warnings),
+                "candidates": [{**c, "matrix": np.round(c["matrix"], 12).tolist()}
+                               for c in self.candidates]}
+
+
+def motion_difference(A: np.ndarray, B: np.ndarray, radius: float = 0.0) -> tuple[float, float]:
+    """Rotation angle (degrees) and translation (mm) of ``A^-1 B`` for 4 x 4 motions; with
+    ``radius`` > 0 the translation is the largest displacement of a point within ``radius``
+    of the origin, ``|t| + radius * angle``."""
+    D = np.linalg.inv(A) @ B
+    ang = float(np.linalg.norm(Rotation.from_matrix(D[:3, :3]).as_rotvec()))
+    return float(np.degrees(ang)), float(np.linalg.norm(D[:3, 3]) + radius * ang)
+
+
+def align_surfaces(source: tuple, target: tuple, options: GlobalOptions | None = None,
+                   progress=None, names: tuple[str, str] = ("source", "target")) -> Alignment:
+    """The rigid motion that puts one surface onto another, without a prior.
+
+    Parameters
+    ----------
+    source, target : tuple (points (N, 3), normals (N, 3))
+        Samples of each surface (mm) with unit normals, each in its own frame, the table and
+        anything below the object's base already left out.
+    options : GlobalOptions, optional
+    progress : callable, optional
+        Called with one line per step.
+    names : (str, str)
+        How the two are named in messages.
+
+    Returns
+    -------
+    Alignment
+
+    Raises
+    ------
+    NurbscanError
+        When no candidate reaches ``min_overlap`` with an RMS under ``max_rms``: the surfaces
+        are not of one object, or overlap too little.
+
+    Notes
+    -----
+    1. thin and describe both surfaces (:func:`_features`);
+    2. RANSAC over feature matches, ``trials`` seeds (:func:`_ransac`);
+    3. refine every candidate by ICP and merge those that agree (:func:`_refine`);
+    4. score the candidates, pick the best, look for an ambiguity (:func:`_score`).
+    """
+    opt = options or GlobalOptions()
+    say = progress or (lambda _m: None)
+    o3d = _open3d()
+    src, tgt = _cloud(o3d, *source), _cloud(o3d, *target)
+    if len(src.points) < 100 or len(tgt.points) < 100:
+        raise NurbscanError(f"{names[0]} / {names[1]}: too few surface points to align "
+                            f"({len(src.points)} and {len(tgt.points)})")
+    s_down, s_feat = _features(o3d, src, opt)
+    t_down, t_feat = _features(o3d, tgt, opt)
+    say(f"global registration: {len(s_down.points)} and {len(t_down.points)} FPFH points "
+        f"({opt.voxel:g} mm voxels), {opt.trials} RANSAC runs")
+    t0 = time.perf_counter()
+    raw = _ransac(o3d, s_down, t_down, s_feat, t_feat, opt)
+    t1 = time.perf_counter()
+    s_icp = src.voxel_down_sample(opt.icp_voxel)
+    t_icp = tgt.voxel_down_sample(opt.icp_voxel)
+    cands = _refine(o3d, s_down, t_down, s_icp, t_icp, raw, opt)
+    say(f"global registration: {len(raw)} RANSAC candidates ({t1 - t0:.1f} s), "
+        f"{len(cands)} distinct after ICP ({time.perf_counter() - t1:.1f} s)")
+    scored = _score(np.asarray(src.points), np.asarray(src.normals), np.asarray(tgt.points),
+                    np.asarray(tgt.normals), cands, opt)
+    best = scored[0]
+    warnings = []
+    ambiguous = False
+    if len(scored) > 1 and scored[1]["overlap"] >= opt.ambiguity * best["overlap"]:
+        ambiguous = True
+        warnings.append(
+            f"the alignment of {names[0]} to {names[1]} is ambiguous: a second alignment "
+            f"{scored[1]['angle_deg']:.1f} degrees and {scored[1]['translation_mm']:.1f} mm "
+            f"away overlaps {100 * scored[1]['overlap']:.1f} % against "
+            f"{100 * best['overlap']:.1f} % (a symmetric object?)")
+    if best["overlap"] < opt.min_overlap or not best["rms_mm"] <= opt.max_rms:
+        raise NurbscanError(
+            f"{names[0]} does not align with {names[1]}: best overlap "
+            f"{100 * best['overlap']:.1f} % (at least {100 * opt.min_overlap:.0f} % needed), "
+            f"RMS {best['rms_mm']:.3f} mm (at most {opt.max_rms:g}): scans of different "
+            "objects, or too little overlap")
+    if best["overlap"] < 2 * opt.min_overlap:
+        warnings.append(f"the overlap of {names[0]} and {names[1]} is small "
+                        f"({100 * best['overlap']:.1f} %): the alignment may be unreliable")
+    return Alignment(best["matrix"], best["rms_mm"], best["overlap"], best["overlap_source"],
+                     best["overlap_target"], scored[:5], ambiguous, warnings)
+
+
+# ---------------------------------------------------------------------------- steps
+def _open3d():
+    try:
+        import open3d as o3d
+    except ImportError as exc:
+        raise NurbscanError(f"global registration: Open3D cannot be imported ({exc})") from None
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+    return o3d
+
+
+def _cloud(o3d, points, normals):
+    P = np.asarray(points, float).reshape(-1, 3)
+    N = np.asarray(normals, float).reshape(-1, 3)
+    ok = np.isfinite(P).all(1) & np.isfinite(N).all(1)
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P[ok]))
+    pcd.normals = o3d.utility.Vector3dVector(N[ok])
+    return pcd
+
+
+def _features(o3d, pcd, opt: GlobalOptions):
+    """Voxel-thinned cloud and its FPFH features (Rusu et al. 2009)."""
+    down = pcd.voxel_down_sample(opt.voxel)
+    down.normalize_normals()
+    feat = o3d.pipelines.registration.compute_fpfh_feature(
+        down, o3d.geometry.KDTreeSearchParamHybrid(radius=opt.feature_radius * opt.voxel,
+                                                   max_nn=100))
+    return down, feat
+
+
+def _ransac(o3d, s_down, t_down, s_feat, t_feat, opt: GlobalOptions) -> list:
+    """One RANSAC motion per seed (4 x 4 arrays)."""
+    reg = o3d.pipelines.registration
+    dist = 1.5 * opt.voxel
+    out = []
+    for seed in range(opt.trials):
+        o3d.utility.random.seed(seed)
+        r = reg.registration_ransac_based_on_feature_matching(
+            s_down, t_down, s_feat, t_feat, True, dist,
+            reg.TransformationEstimationPointToPoint(False), 3,
+            [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+             reg.CorrespondenceCheckerBasedOnDistance(dist)],
+            reg.RANSACConvergenceCriteria(opt.ransac_iterations, 0.9999))
+        if r.fitness > 0:
+            out.append(np.asarray(r.transformation, float).copy())
+    return out
+
+
+def _refine(o3d, s_down, t_down, s_icp, t_icp, raw: list, opt: GlobalOptions) -> list:
+    """Point-to-plane ICP from each candidate: the levels of ``icp_distances`` above twice the
+    feature voxel on the thinned clouds, then candidates that ended within the distinct
+    thresholds of an earlier one are merged (its ``runs`` counted), and only the distinct ones
+    are refined over the finer levels on the denser samples."""
+    reg = o3d.pipelines.registration
+
+    def icp(src, tgt, T, levels):
+        for d in levels:
+            r = reg.registration_icp(src, tgt, d, T, reg.TransformationEstimationPointToPlane(),
+                                     reg.ICPConvergenceCriteria(max_iteration=40))
+            T = np.asarray(r.transformation, float).copy()
+        return T
+
+    coarse = [d for d in opt.icp_distances if d >= 0.5 * opt.voxel]
+    fine = [d for d in opt.icp_distances if d < 0.5 * opt.voxel]
+    out: list = []
+    for T0 in raw:
+        T = icp(s_down, t_down, T0, coarse)
+        for c in out:
+            ang, tr = motion_difference(c["matrix"], T, 0.0)
+            if ang <= opt.distinct_angle and tr <= opt.distinct_translation:
+                c["runs"] += 1
+                break
+        else:
+            out.append({"matrix": T, "runs": 1})
+    # only the candidates that overlap best on the thinned clouds go on to the fine levels:
+    # the best and its runner-up decide the alignment and its ambiguity
+    Ps, Pt = np.asarray(s_down.points), np.asarray(t_down.points)
+    Nt = np.asarray(t_down.normals)
+    tree_t = cKDTree(Pt)
+    for c in out:
+        c["coarse_overlap"] = overlap_rms(Ps, c["matrix"], Pt, Nt, 0.3 * opt.voxel,
+                                          1.5 * opt.voxel, tree_t)[0]
+    out.sort(key=lambda c: -c["coarse_overlap"])
+    out = out[:opt.fine_candidates]
+    for c in out:
+        c["matrix"] = icp(s_icp, t_icp, c["matrix"], fine)
+    return out
+
+
+def overlap_rms(P: np.ndarray, T: np.ndarray, Q: np.ndarray, NQ: np.ndarray,
+                distance: float, reach: float, tree=None) -> tuple[float, float]:
+    """Share of the points ``P`` (N, 3), moved by ``T`` (4 x 4), within ``distance`` (mm) of
+    the surface sampled by ``Q`` with normals ``NQ`` (the plane of the nearest sample, at most
+    ``reach`` mm away), and the RMS point-to-plane distance over that overlap (mm)."""
+    from scipy.spatial import cKDTree
+
+    X = P @ T[:3, :3].T + T[:3, 3]
+    d, i = (tree or cKDTree(Q)).query(X, distance_upper_bound=reach)
+    near = np.flatnonzero(np.isfinite(d))
+    plane = np.abs(np.einsum("ij,ij->i", X[near] - Q[i[near]], NQ[i[near]]))
+    ok = plane <= distance
+    if not ok.any():
+        return 0.0, float("inf")
+    return float(ok.sum() / max(len(P), 1)), float(np.sqrt(np.mean(plane[ok] ** 2)))
+
+
+def _score(Ps, Ns, Pt, Nt, cands: list, opt: GlobalOptions) -> list:
+    """Overlap shares and RMS over the overlap of each candidate (:func:`overlap_rms`, both
+    ways), best (overlap of the smaller surface) first, with each candidate's angle and
+    translation from the best."""
+    if not cands:
+        return [{"matrix": np.eye(4), "overlap": 0.0, "overlap_source": 0.0,
+                 "overlap_target": 0.0, "rms_mm": float("inf"), "runs": 0,
+                 "angle_deg": 0.0, "translation_mm": 0.0}]
+    tree_t, tree_s = cKDTree(Pt), cKDTree(Ps)
+    scored = []
+    for c in cands:
+        T = c["matrix"]
+        share_s, rms = overlap_rms(Ps, T, Pt, Nt, opt.overlap_distance, opt.overlap_reach,
+                                   tree_t)
+        ov_t, _ = overlap_rms(Pt, np.linalg.inv(T), Ps, Ns, opt.overlap_distance,
+                              opt.overlap_reach, tree_s)
+        smaller = share_s if len(Ps) <= len(Pt) else ov_t
+        scored.append({"matrix": T, "overlap": smaller, "overlap_source": share_s,
+                       "overlap_target": ov_t, "rms_mm": rms, "runs": c["runs"]})
+    scored.sort(key=lambda c: (-c["overlap"], c["rms_mm"]))
+    for c in scored:
+        ang, tr = motion_difference(scored[0]["matrix"], c["matrix"], 0.0)
+        c["angle_deg"], c["translation_mm"] = round(ang, 6), round(tr, 6)
+        c["overlap"], c["overlap_source"] = round(c["overlap"], 6), round(c["overlap_source"], 6)
+        c["overlap_target"], c["rms_mm"] = round(c["overlap_target"], 6), round(c["rms_mm"], 6)
+    return scored
