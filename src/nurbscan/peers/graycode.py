@@ -86,7 +86,8 @@ class StripeSet:
     It has the attributes that :func:`nurbscan.simulate.render.pattern_light` reads from a
     :class:`~nurbscan.pattern.Pattern` (``width``, ``height``, ``rgb``, ``sequence``,
     ``vertical_edges``, ``horizontal_edges``): band ``i`` of the non-empty direction has the
-    colour ``rgb[sequence[i]]``, primary ``sequence[i]``. Hashable (the light is cached).
+    colour ``rgb[sequence[i]]``, primary ``sequence[i]`` at full level (or, with ``levels``,
+    that primary at grey level ``levels[i]`` out of 255). Hashable (the light is cached).
 
     Attributes
     ----------
@@ -98,6 +99,9 @@ class StripeSet:
         Rising and falling edge of every band, projector px.
     channels : tuple of int
         Primary (0, 1, 2) of every band.
+    levels : tuple of int
+        Projector grey level 0..255 of every band (empty: 255 for all), so that any 8-bit
+        projector image that varies along one direction is a band per projector pixel.
     """
 
     width: int
@@ -105,13 +109,19 @@ class StripeSet:
     direction: str
     edges: tuple[tuple[float, float], ...] = ()
     channels: tuple[int, ...] = ()
+    levels: tuple[int, ...] = ()
 
     @property
     def rgb(self) -> np.ndarray:
-        return np.array(_PRIMARIES, dtype=np.uint8)
+        if not self.levels:
+            return np.array(_PRIMARIES, dtype=np.uint8)
+        unit = np.eye(3, dtype=np.int64)[np.asarray(self.channels, int)]
+        return (unit * np.asarray(self.levels, np.int64)[:, None]).astype(np.uint8)
 
     @property
     def sequence(self) -> np.ndarray:
+        if self.levels:
+            return np.arange(len(self.levels))
         return np.asarray(self.channels if self.channels else (0,), dtype=int)
 
     def _edges(self, direction: str) -> np.ndarray:
@@ -126,6 +136,42 @@ class StripeSet:
     @property
     def horizontal_edges(self) -> np.ndarray:
         return self._edges("horizontal")
+
+
+def group_stripes(width: int, height: int,
+                  images: list[tuple[str, np.ndarray, np.ndarray | None]]
+                  ) -> list[tuple[list[int], StripeSet]]:
+    """Stripe images grouped three per render on the primaries (same direction each group).
+
+    Parameters
+    ----------
+    width, height : int
+        Projector size, px.
+    images : list of (direction, edges (n, 2), levels (n,) or None)
+        Each image's bands (projector px) and their grey levels (None: 255).
+
+    Returns
+    -------
+    list of (image indices, StripeSet)
+    """
+    groups: list[tuple[list[int], StripeSet]] = []
+    for direction in ("vertical", "horizontal"):
+        idx = [k for k, im in enumerate(images) if im[0] == direction]
+        for a in range(0, len(idx), 3):
+            part = idx[a:a + 3]
+            edges, chans, levels = [], [], []
+            graded = any(images[k][2] is not None for k in part)
+            for c, k in enumerate(part):
+                e = images[k][1]
+                edges += [tuple(map(float, r)) for r in e]
+                chans += [c] * len(e)
+                if graded:
+                    lv = images[k][2]
+                    levels += ([255] * len(e) if lv is None
+                               else [int(x) for x in np.asarray(lv).ravel()])
+            groups.append((part, StripeSet(width, height, direction, tuple(edges),
+                                           tuple(chans), tuple(levels))))
+    return groups
 
 
 @dataclass(frozen=True)
@@ -207,22 +253,10 @@ class GrayCode:
     def stripe_sets(self) -> list[tuple[list[int], StripeSet]]:
         """The pattern images grouped three per render on the primaries (same direction).
 
-        Returns ``[(image indices, StripeSet), ...]``.
+        Returns ``[(image indices, StripeSet), ...]`` (:func:`group_stripes`).
         """
-        groups: list[tuple[list[int], StripeSet]] = []
-        st = self.stripes()
-        for direction in ("vertical", "horizontal"):
-            idx = [k for k, (d, _) in enumerate(st) if d == direction]
-            for a in range(0, len(idx), 3):
-                part = idx[a:a + 3]
-                edges, chans = [], []
-                for c, k in enumerate(part):
-                    e = st[k][1]
-                    edges += [tuple(map(float, r)) for r in e]
-                    chans += [c] * len(e)
-                groups.append((part, StripeSet(self.width, self.height, direction,
-                                               tuple(edges), tuple(chans))))
-        return groups
+        return group_stripes(self.width, self.height,
+                             [(d, e, None) for d, e in self.stripes()])
 
     def to_dict(self) -> dict[str, Any]:
         return {"type": TYPE, "version": VERSION, "width": int(self.width),
@@ -284,10 +318,34 @@ def _footprint_jacobian(coord: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return out[0], out[1]
 
 
-def render_gray_code(scene, rig, code: GrayCode | None = None, angle: float = 0.0,
-                     settings=None, seed: int = 0, stream: int = 0, mode: str = "fast",
-                     workers: int | None = None) -> GrayCodeCapture:
-    """Render one view of ``scene`` under the whole Gray-code set (module notes, step 2).
+@dataclass(frozen=True)
+class StripeCapture:
+    """The grey camera images of one view under a sequence of stripe images.
+
+    Attributes
+    ----------
+    images : list of ndarray (H, W) uint8 (or uint16)
+        Grey camera image of each projector image, in the sequence's order.
+    white, black : ndarray (H, W)
+        Grey camera images under the all-white and the all-black projector image.
+    truth : dict of ndarray
+        The simulator's per-pixel truth (:class:`~nurbscan.simulate.render.RenderedView`).
+    stats : dict
+        Wall-clock seconds (``render_s``) and the number of ``render_view`` calls.
+    """
+
+    images: list
+    white: np.ndarray
+    black: np.ndarray
+    truth: dict
+    stats: dict = field(default_factory=dict)
+
+
+def render_stripe_images(scene, rig, images: list[tuple[str, np.ndarray, np.ndarray | None]],
+                         angle: float = 0.0, settings=None, seed: int = 0, stream: int = 0,
+                         mode: str = "fast", workers: int | None = None,
+                         first_kind: int = 2) -> StripeCapture:
+    """Render one view of ``scene`` under a sequence of stripe images (module notes, step 2).
 
     Parameters
     ----------
@@ -295,14 +353,15 @@ def render_gray_code(scene, rig, code: GrayCode | None = None, angle: float = 0.
         Object frame, mm.
     rig : nurbscan.camera.Rig
         The true rig (rendering).
-    code : GrayCode, optional
-        Default: OpenCV's set at the projector's size.
+    images : list of (direction, edges (n, 2), levels (n,) or None)
+        The projector images, each a set of bands across x (``"vertical"``) or y with their
+        grey levels 0..255 (None: 255), projector px (:func:`group_stripes`).
     angle : float
         Table angle, radians.
     settings : nurbscan.simulate.RenderSettings, optional
     seed, stream : int
-        Noise seed and stream of the view (as ``render_view``); pattern image k uses the noise
-        stream kind ``2 + k``.
+        Noise seed and stream of the view (as ``render_view``); image k uses the noise
+        stream kind ``first_kind + k``.
     mode : {"fast", "exact"}
         See the module notes.
     workers : int, optional
@@ -310,26 +369,23 @@ def render_gray_code(scene, rig, code: GrayCode | None = None, angle: float = 0.
 
     Returns
     -------
-    GrayCodeCapture
+    StripeCapture
     """
     from ..simulate.render import RenderSettings, encode, noise_rng, pattern_light, render_view
 
     if mode not in ("fast", "exact"):
         raise NurbscanError(f"mode={mode!r}: must be 'fast' or 'exact'")
     s = settings or RenderSettings()
-    code = code or GrayCode.for_projector(rig.projector)
-    if (code.width, code.height) != (int(rig.projector.width), int(rig.projector.height)):
-        raise NurbscanError(f"gray code {code.width} x {code.height}: not the projector's size "
-                            f"{rig.projector.width} x {rig.projector.height}")
+    pw, ph = int(rig.projector.width), int(rig.projector.height)
     t0 = time.perf_counter()
-    dark = StripeSet(code.width, code.height, "vertical")
+    dark = StripeSet(pw, ph, "vertical")
     base = render_view(scene, rig, dark, angle, s, seed=seed, stream=stream, workers=workers)
     calls = 1
     black_lin = base.linear_grid  # (H, W, 3) camera RGB, projector black
     span = base.linear_white - black_lin  # camera RGB of the projector's full light
     truth = base.truth
     H, W = truth["lit"].shape
-    groups = code.stripe_sets()
+    groups = group_stripes(pw, ph, images)
     n_img = sum(len(ix) for ix, _ in groups)
     pats: list = [None] * n_img
     nthreads = max(1, int(workers or os.cpu_count() or 1))
@@ -368,14 +424,54 @@ def render_gray_code(scene, rig, code: GrayCode | None = None, angle: float = 0.
         def sensor(ck: tuple[int, int], p=p) -> None:
             c, k = ck
             lin = black_lin + p[..., c:c + 1] * span
-            pats[k] = _grey(encode(lin, s, noise_rng(seed, stream, 2 + k)))
+            pats[k] = _grey(encode(lin, s, noise_rng(seed, stream, first_kind + k)))
 
         with ThreadPoolExecutor(max_workers=nthreads) as ex:  # one image per thread
             list(ex.map(sensor, enumerate(idx)))
     stats = {"render_s": time.perf_counter() - t0, "render_view_calls": calls,
              **{f"simulator_{k}": v for k, v in base.stats.items()}}
-    return GrayCodeCapture(patterns=pats, white=_grey(base.white), black=_grey(base.grid),
-                           truth=truth, stats=stats)
+    return StripeCapture(images=pats, white=_grey(base.white), black=_grey(base.grid),
+                         truth=truth, stats=stats)
+
+
+def render_gray_code(scene, rig, code: GrayCode | None = None, angle: float = 0.0,
+                     settings=None, seed: int = 0, stream: int = 0, mode: str = "fast",
+                     workers: int | None = None) -> GrayCodeCapture:
+    """Render one view of ``scene`` under the whole Gray-code set (module notes, step 2).
+
+    Parameters
+    ----------
+    scene : nurbscan.simulate.scenes.Scene
+        Object frame, mm.
+    rig : nurbscan.camera.Rig
+        The true rig (rendering).
+    code : GrayCode, optional
+        Default: OpenCV's set at the projector's size.
+    angle : float
+        Table angle, radians.
+    settings : nurbscan.simulate.RenderSettings, optional
+    seed, stream : int
+        Noise seed and stream of the view (as ``render_view``); pattern image k uses the noise
+        stream kind ``2 + k``.
+    mode : {"fast", "exact"}
+        See the module notes.
+    workers : int, optional
+        Threads of ``render_view``.
+
+    Returns
+    -------
+    GrayCodeCapture
+    """
+    if mode not in ("fast", "exact"):
+        raise NurbscanError(f"mode={mode!r}: must be 'fast' or 'exact'")
+    code = code or GrayCode.for_projector(rig.projector)
+    if (code.width, code.height) != (int(rig.projector.width), int(rig.projector.height)):
+        raise NurbscanError(f"gray code {code.width} x {code.height}: not the projector's size "
+                            f"{rig.projector.width} x {rig.projector.height}")
+    cap = render_stripe_images(scene, rig, [(d, e, None) for d, e in code.stripes()], angle,
+                               settings, seed, stream, mode, workers, first_kind=2)
+    return GrayCodeCapture(patterns=cap.images, white=cap.white, black=cap.black,
+                           truth=cap.truth, stats=cap.stats)
 
 
 def shadow_mask(white: np.ndarray, black: np.ndarray, code: GrayCode) -> np.ndarray:
