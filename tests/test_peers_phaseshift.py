@@ -219,3 +219,23 @@ def test_scan_view_round_trip_and_errors(setup):
     with pytest.raises(NurbscanError, match="images"):
         ps.decode(gc.StripeCapture(images=r["capture"].images[:-1], white=None, black=None,
                                    truth={}), code)
+
+
+def test_shared_dark_render_gives_the_same_images():
+    """One dark render serves several noise levels: bit for bit a fresh render's images."""
+    from nurbscan.simulate import render_view
+
+    rig = _rig(200, 150)
+    scene = make_scene("sphere")
+    code = ps.PhaseShift.for_projector(rig.projector)
+    base = render_view(scene, rig, gc.StripeSet(480, 270, "vertical"), ANGLE,
+                       MATTE.replace(noise=0.5), seed=2, stream=1, workers=2)
+    s = MATTE.replace(noise=2.0)
+    fresh = ps.render_phase_shift(scene, rig, code, ANGLE, s, seed=2, stream=1, workers=2)
+    shared = ps.render_phase_shift(scene, rig, code, ANGLE, s, seed=2, stream=1, workers=2,
+                                   base=base)
+    assert shared.stats["render_view_calls"] == 0 and fresh.stats["render_view_calls"] == 1
+    for a, b in zip(fresh.images + [fresh.white, fresh.black],
+                    shared.images + [shared.white, shared.black], strict=True):
+        assert np.array_equal(a, b)
+    assert not np.array_equal(fresh.white, gc._grey(base.white))  # other noise

@@ -344,7 +344,7 @@ class StripeCapture:
 def render_stripe_images(scene, rig, images: list[tuple[str, np.ndarray, np.ndarray | None]],
                          angle: float = 0.0, settings=None, seed: int = 0, stream: int = 0,
                          mode: str = "fast", workers: int | None = None,
-                         first_kind: int = 2) -> StripeCapture:
+                         first_kind: int = 2, base=None) -> StripeCapture:
     """Render one view of ``scene`` under a sequence of stripe images (module notes, step 2).
 
     Parameters
@@ -366,6 +366,15 @@ def render_stripe_images(scene, rig, images: list[tuple[str, np.ndarray, np.ndar
         See the module notes.
     workers : int, optional
         Threads of ``render_view``.
+    first_kind : int
+        Noise stream kind of the first image.
+    base : nurbscan.simulate.RenderedView, optional
+        The ray-traced view under a black projector image (``StripeSet`` without bands) of
+        the same scene, rig, angle, seed and stream at settings that differ from ``settings``
+        at most in the sensor's (``noise``, ``read_noise``, ``exposure``...): its noise-free
+        radiance and truth are reused and the white and black images re-encoded with
+        ``settings``, bit for bit what a fresh render gives (one render for several noise
+        levels).
 
     Returns
     -------
@@ -378,9 +387,16 @@ def render_stripe_images(scene, rig, images: list[tuple[str, np.ndarray, np.ndar
     s = settings or RenderSettings()
     pw, ph = int(rig.projector.width), int(rig.projector.height)
     t0 = time.perf_counter()
-    dark = StripeSet(pw, ph, "vertical")
-    base = render_view(scene, rig, dark, angle, s, seed=seed, stream=stream, workers=workers)
-    calls = 1
+    if base is None:
+        dark = StripeSet(pw, ph, "vertical")
+        base = render_view(scene, rig, dark, angle, s, seed=seed, stream=stream,
+                           workers=workers)
+        calls = 1
+        white, black = base.white, base.grid
+    else:
+        calls = 0
+        white = encode(base.linear_white, s, noise_rng(seed, stream, 1))
+        black = encode(base.linear_grid, s, noise_rng(seed, stream, 0))
     black_lin = base.linear_grid  # (H, W, 3) camera RGB, projector black
     span = base.linear_white - black_lin  # camera RGB of the projector's full light
     truth = base.truth
@@ -430,13 +446,13 @@ def render_stripe_images(scene, rig, images: list[tuple[str, np.ndarray, np.ndar
             list(ex.map(sensor, enumerate(idx)))
     stats = {"render_s": time.perf_counter() - t0, "render_view_calls": calls,
              **{f"simulator_{k}": v for k, v in base.stats.items()}}
-    return StripeCapture(images=pats, white=_grey(base.white), black=_grey(base.grid),
-                         truth=truth, stats=stats)
+    return StripeCapture(images=pats, white=_grey(white), black=_grey(black), truth=truth,
+                         stats=stats)
 
 
 def render_gray_code(scene, rig, code: GrayCode | None = None, angle: float = 0.0,
                      settings=None, seed: int = 0, stream: int = 0, mode: str = "fast",
-                     workers: int | None = None) -> GrayCodeCapture:
+                     workers: int | None = None, base=None) -> GrayCodeCapture:
     """Render one view of ``scene`` under the whole Gray-code set (module notes, step 2).
 
     Parameters
@@ -457,6 +473,8 @@ def render_gray_code(scene, rig, code: GrayCode | None = None, angle: float = 0.
         See the module notes.
     workers : int, optional
         Threads of ``render_view``.
+    base : RenderedView, optional
+        As :func:`render_stripe_images`.
 
     Returns
     -------
@@ -469,7 +487,7 @@ def render_gray_code(scene, rig, code: GrayCode | None = None, angle: float = 0.
         raise NurbscanError(f"gray code {code.width} x {code.height}: not the projector's size "
                             f"{rig.projector.width} x {rig.projector.height}")
     cap = render_stripe_images(scene, rig, [(d, e, None) for d, e in code.stripes()], angle,
-                               settings, seed, stream, mode, workers, first_kind=2)
+                               settings, seed, stream, mode, workers, first_kind=2, base=base)
     return GrayCodeCapture(patterns=cap.images, white=cap.white, black=cap.black,
                            truth=cap.truth, stats=cap.stats)
 
@@ -598,7 +616,7 @@ def error_stats(d: np.ndarray) -> dict[str, float]:
 def scan_view(scene, rig, angle: float = 0.0, *, calibrated_rig=None, code: GrayCode | None = None,
               settings=None, seed: int = 0, stream: int = 0, mode: str = "fast",
               decoder: str = "opencv", workers: int | None = None,
-              error_sample: int | None = 200_000) -> dict[str, Any]:
+              error_sample: int | None = 200_000, base=None) -> dict[str, Any]:
     """Render, decode and triangulate one view; measure it against the truth.
 
     Parameters
@@ -610,6 +628,8 @@ def scan_view(scene, rig, angle: float = 0.0, *, calibrated_rig=None, code: Gray
     decoder : {"opencv", "numpy"}
     error_sample : int, optional
         Measure the error on this many points drawn at random (seed 0); None: all.
+    base : RenderedView, optional
+        As :func:`render_stripe_images`.
 
     Returns
     -------
@@ -621,7 +641,7 @@ def scan_view(scene, rig, angle: float = 0.0, *, calibrated_rig=None, code: Gray
         ``points_rig`` (N, 3), ``pixels`` (N,), the ``capture`` and the decoded ``column``.
     """
     code = code or GrayCode.for_projector(rig.projector)
-    cap = render_gray_code(scene, rig, code, angle, settings, seed, stream, mode, workers)
+    cap = render_gray_code(scene, rig, code, angle, settings, seed, stream, mode, workers, base)
     t0 = time.perf_counter()
     if decoder == "opencv":
         col, _ = decode_opencv(cap, code)

@@ -207,7 +207,7 @@ class PhaseShift:
 
 def render_phase_shift(scene, rig, code: PhaseShift | None = None, angle: float = 0.0,
                        settings=None, seed: int = 0, stream: int = 0, mode: str = "fast",
-                       workers: int | None = None) -> StripeCapture:
+                       workers: int | None = None, base=None) -> StripeCapture:
     """Render one view of ``scene`` under the whole phase-shift set (module notes, step 2).
 
     Parameters
@@ -225,6 +225,8 @@ def render_phase_shift(scene, rig, code: PhaseShift | None = None, angle: float 
     mode : {"fast", "exact"}
         As :func:`nurbscan.peers.graycode.render_gray_code`.
     workers : int, optional
+    base : RenderedView, optional
+        As :func:`nurbscan.peers.graycode.render_stripe_images` (a shared dark render).
 
     Returns
     -------
@@ -236,7 +238,7 @@ def render_phase_shift(scene, rig, code: PhaseShift | None = None, angle: float 
         raise NurbscanError(f"phase shift {code.width} x {code.height}: not the projector's "
                             f"size {rig.projector.width} x {rig.projector.height}")
     return render_stripe_images(scene, rig, code.images(), angle, settings, seed, stream, mode,
-                                workers, first_kind=_FIRST_KIND)
+                                workers, first_kind=_FIRST_KIND, base=base)
 
 
 def _linearise(img: np.ndarray, gamma: float) -> np.ndarray:
@@ -378,12 +380,12 @@ def triangulate(column: np.ndarray, row: np.ndarray, rig,
 def scan_view(scene, rig, angle: float = 0.0, *, calibrated_rig=None,
               code: PhaseShift | None = None, settings=None, seed: int = 0, stream: int = 0,
               mode: str = "fast", workers: int | None = None,
-              error_sample: int | None = 200_000) -> dict[str, Any]:
+              error_sample: int | None = 200_000, base=None) -> dict[str, Any]:
     """Render, decode and triangulate one view; measure it against the truth.
 
     Parameters
     ----------
-    scene, rig, angle, code, settings, seed, stream, mode, workers
+    scene, rig, angle, code, settings, seed, stream, mode, workers, base
         As :func:`render_phase_shift` (``rig`` is the true rig that renders).
     calibrated_rig : Rig, optional
         The rig that triangulates (default ``rig``).
@@ -399,7 +401,8 @@ def scan_view(scene, rig, angle: float = 0.0, *, calibrated_rig=None,
         and ``row`` (H, W).
     """
     code = code or PhaseShift.for_projector(rig.projector)
-    cap = render_phase_shift(scene, rig, code, angle, settings, seed, stream, mode, workers)
+    cap = render_phase_shift(scene, rig, code, angle, settings, seed, stream, mode, workers,
+                             base)
     t0 = time.perf_counter()
     col, row, _ = decode(cap, code)
     t1 = time.perf_counter()
