@@ -3,9 +3,9 @@
 The same teapot views (default rig: camera 3072 x 2304 = 7.1 MP, projector 1920 x 1080, default
 noise) are scanned twice through the same simulator:
 
-* **Gray code** (:mod:`nurbscan.graycode`): OpenCV's full pattern set (22 bit planes with their
-  inverses, plus white and black: 46 images per view) rendered in the simulator's ``"fast"`` mode
-  (one ray-traced render, the stripes' light from the exact projector coordinates; the
+* **Gray code** (:mod:`nurbscan.peers.graycode`): OpenCV's full pattern set (22 bit planes with
+  their inverses, plus white and black: 46 images per view) rendered in the simulator's ``"fast"``
+  mode (one ray-traced render, the stripes' light from the exact projector coordinates; the
   ``"exact"`` mode's agreement is measured below at a reduced size), decoded by OpenCV
   (``GrayCodePattern.getProjPixel`` on the unshadowed pixels) and triangulated on the exact light
   surface of each decoded projector column.
@@ -87,9 +87,9 @@ def _rig():
 
 def one_view(scene, rig, crig, pattern, code, k: int, angle: float) -> dict:
     """Both methods on one view."""
-    from nurbscan import graycode as gc
     from nurbscan.detect import detect_grid
     from nurbscan.evaluate.table import gordon_cloud
+    from nurbscan.peers import graycode as gc
     from nurbscan.reconstruct import Model, reconstruct_view
     from nurbscan.reconstruct.pipeline import add_view
     from nurbscan.simulate import RenderSettings, render_view
@@ -163,7 +163,7 @@ def one_view(scene, rig, crig, pattern, code, k: int, angle: float) -> dict:
 
 def fast_vs_exact(scene, code_small, rig_small) -> dict:
     """Agreement of the fast and the exact Gray-code rendering at a reduced size."""
-    from nurbscan import graycode as gc
+    from nurbscan.peers import graycode as gc
 
     t = time.perf_counter()
     f = gc.render_gray_code(scene, rig_small, code_small, ANGLES[0], mode="fast")
@@ -184,7 +184,7 @@ def fast_vs_exact(scene, code_small, rig_small) -> dict:
 
 
 def bench() -> dict:
-    from nurbscan import graycode as gc
+    from nurbscan.peers import graycode as gc
     from nurbscan.simulate import make_scene, scale_camera
     from nurbscan.simulate.scan import default_pattern
 

@@ -102,7 +102,7 @@ def slope(pixels, seconds) -> float:
 
 def point_errors(points_rig, scene, rig, angle) -> dict:
     """Error stats of rig-frame points against the truth (scene or table top)."""
-    from nurbscan.graycode import error_stats, world_error
+    from nurbscan.peers.graycode import error_stats, world_error
 
     return {"points": int(len(points_rig)),
             **error_stats(world_error(points_rig, scene, rig, angle))}

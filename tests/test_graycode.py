@@ -1,13 +1,14 @@
-"""Tests of the Gray-code peer scanner (nurbscan.graycode) against the simulator's truth."""
+"""Tests of the Gray-code peer scanner (nurbscan.peers.graycode) against the simulator's
+truth."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from nurbscan import graycode as gc
 from nurbscan.camera import Rig
 from nurbscan.errors import NurbscanError
+from nurbscan.peers import graycode as gc
 from nurbscan.reconstruct import intersect_exact
 from nurbscan.simulate import default_rig, make_scene, scale_camera
 from nurbscan.simulate.rig import _scaled
@@ -144,3 +145,12 @@ def test_scan_view_measures_against_truth(setup):
     assert r["error"]["rms_mm"] == pytest.approx(np.sqrt(np.mean(d**2)), rel=0.15)
     with pytest.raises(NurbscanError, match="decoder"):
         gc.scan_view(scene, small, ANGLE, code=code, decoder="other")
+
+
+def test_deprecated_module_forwards():
+    import nurbscan.graycode as old
+
+    with pytest.warns(DeprecationWarning, match="nurbscan.peers.graycode"):
+        assert old.GrayCode is gc.GrayCode
+    with pytest.warns(DeprecationWarning):
+        assert old.scan_view is gc.scan_view
