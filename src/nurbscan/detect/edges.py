@@ -400,7 +400,9 @@ def line_taps(ix: np.ndarray, iy: np.ndarray, axis, slope: np.ndarray, step,
 
 def sample_taps(img: np.ndarray, idx: np.ndarray, wts: np.ndarray) -> np.ndarray:
     """``img`` (H, W) sampled with the taps of :func:`line_taps`, float64 (N, K)."""
-    return (img.ravel()[idx] * wts).sum(axis=2)
+    s = np.take(img.ravel(), idx).astype(np.float64)
+    s *= wts
+    return ((s[..., 0] + s[..., 1]) + s[..., 2]) + s[..., 3]  # (numpy's sum of 4, in order)
 
 
 def _along_line(img: np.ndarray, ix: np.ndarray, iy: np.ndarray, axis: int,
@@ -673,16 +675,27 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
         across = axes
     ux, uy = (np.asarray(across, np.float64).T[:, :, None] * sgn[None, :, None])
 
+    # the filters over the points' window only (the same values there as over the image):
+    # the reach of the filters and of the taps (a step and a cubic tap across) around them
+    h, w = getattr(channels, "shape", None) or channels[0].shape
+    m = max(int(np.ceil(4.0 * max(sigma, sigma_along or 0.0))), 1) + 8
+    rows = slice(max(int(iy.min()) - m, 0), min(int(iy.max()) + m + 1, h))
+    cols = slice(max(int(ix.min()) - m, 0), min(int(ix.max()) + m + 1, w))
+    if hasattr(channels, "crop"):
+        channels = channels.crop(rows, cols)
+    else:
+        channels = _Cropped(channels, rows, cols)
+    jx, jy = ix - cols.start, iy - rows.start
     taps = None
     for c in range(3):
         img = channels[c]  # (a lazy sequence computes each plane here: one at a time)
         if taps is None:
             # (N, 3): the samples along each point's fit line, from taps shared by the images
-            taps = line_taps(ix, iy, np.where(vert, 0, 1), sl, steps, img.shape)
+            taps = line_taps(jx, jy, np.where(vert, 0, 1), sl, steps, img.shape)
         gx, gy = gradient(img, sigma, sigma_along)
         del img
         prof = sample_taps(gx, *taps) * ux + sample_taps(gy, *taps) * uy
-        cx, cy = gx[iy, ix], gy[iy, ix]
+        cx, cy = gx[jy, jx], gy[jy, jx]
         along = nx * cy - ny * cx
         normal_d = nx * cx + ny * cy
         mag.append(prof[:, 1])
@@ -698,3 +711,13 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     x = np.where(peak, np.where(vert, ix + d, ix + d * sl), x)
     y = np.where(peak, np.where(vert, iy + d * sl, iy + d), y)
     return x, y, peak
+
+
+class _Cropped:
+    """The window ``(rows, cols)`` of each of a sequence of images, taken when indexed."""
+
+    def __init__(self, images, rows: slice, cols: slice):
+        self._images, self._rows, self._cols = images, rows, cols
+
+    def __getitem__(self, c: int) -> np.ndarray:
+        return self._images[c][self._rows, self._cols]
