@@ -194,10 +194,14 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
                 f"image's {chans[0].shape[1]}x{chans[0].shape[0]}"
             )
         dens = []
+        # cv2.GaussianBlur(c, (0, 0), 0.7)'s own kernel and border, through sepFilter2D: the
+        # same values, in half the time
+        g = cv2.getGaussianKernel(7, 0.7, cv2.CV_32F)
         for c in wp:  # the blurred white minus the dark level, in place (no fresh 28 MB)
-            d = cv2.GaussianBlur(c, (0, 0), 0.7)
+            d = cv2.sepFilter2D(c, cv2.CV_32F, g, g, borderType=cv2.BORDER_REFLECT_101)
             dens.append(cv2.subtract(d, dark, dst=d))
-        valid = cv2.max(cv2.max(dens[0], dens[1]), dens[2]) > floor
+        # max over the channels > floor, without the image-sized maxima
+        valid = (dens[0] > floor) | (dens[1] > floor) | (dens[2] > floor)
         for d in dens:  # 1 / max(d, floor), in place (no fresh 28 MB arrays)
             np.maximum(d, np.float32(floor), out=d)
             np.reciprocal(d, out=d)
