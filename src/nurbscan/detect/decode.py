@@ -218,6 +218,7 @@ def oblique_runs(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.n
     if x1 == w + 2:
         grid[:, -1] = -1
     grid = grid.ravel()
+    itype = np.int32 if grid.size < 2**31 else np.int64
     succ = np.full(n, -1, np.int64)
     perp_of = np.full(n, np.inf)
     active = np.arange(n)
@@ -226,14 +227,21 @@ def oblique_runs(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.n
             break
         st = steps[c0:c0 + 8]
         xa, ya, ua = x[active], y[active], u[active]
-        sx = np.clip(np.rint(xa[:, None] + st * ua[:, :1]).astype(np.int64), -1, w) + 1 - x0
-        sy = np.clip(np.rint(ya[:, None] + st * ua[:, 1:]).astype(np.int64), -1, h) + 1 - y0
-        sy *= gw
-        sy += sx
-        j = np.take(grid, sy).astype(np.int64)  # (A, C): the points met, in step order
-        hit = (j >= 0) & (line[np.maximum(j, 0)] != line[active][:, None])
-        ri, ci = np.nonzero(hit)  # row-major: each ray's hits in step order
-        jj = j[ri, ci]
+        # the samples' raster pixels (rounded, clamped to the border ring), flat
+        sx = st * ua[:, :1]
+        sx += xa[:, None]
+        sy = st * ua[:, 1:]
+        sy += ya[:, None]
+        for a, top in ((sx, w), (sy, h)):
+            np.rint(a, out=a)
+            np.clip(a, -1, top, out=a)
+        flat = (sy.astype(itype) + (1 - y0)) * gw + (sx.astype(itype) + (1 - x0))
+        del sx, sy
+        j = np.take(grid, flat)  # (A, C): the points met, in step order
+        ri, ci = np.nonzero(j >= 0)  # row-major: each ray's hits in step order
+        jj = j[ri, ci].astype(np.int64)
+        other = line[jj] != line[active[ri]]  # (a point does not meet its own chain)
+        ri, jj = ri[other], jj[other]
         rx, ry = x[jj] - xa[ri], y[jj] - ya[ri]
         s = rx * ua[ri, 0] + ry * ua[ri, 1]
         pp = np.abs(rx * ua[ri, 1] - ry * ua[ri, 0])

@@ -383,19 +383,24 @@ def line_taps(ix: np.ndarray, iy: np.ndarray, axis, slope: np.ndarray, step,
        Trans. Acoustics, Speech and Signal Processing 29(6), 1153-1160, 1981.
     """
     h, w = shape
-    step = np.asarray(step, np.float64)[None, :, None]
-    along_x = (np.broadcast_to(np.asarray(axis), np.shape(ix)) == 0)[:, None, None]
-    off = np.asarray(slope, np.float64)[:, None, None] * step
+    step = np.asarray(step, np.float64)
+    along_x = np.broadcast_to(np.asarray(axis), np.shape(ix)) == 0
+    off = np.asarray(slope, np.float64)[:, None, None] * step[None, :, None]
     f = np.floor(off)
     t = off - f
     wts = np.concatenate([((-0.5 * t + 1.0) * t - 0.5) * t, (1.5 * t - 2.5) * t * t + 1.0,
                           ((-1.5 * t + 2.0) * t + 0.5) * t, (0.5 * t - 0.5) * t * t], axis=2)
-    across = f.astype(np.int64) + np.arange(-1, 3)[None, None, :]  # (N, K, 4)
-    run = step.astype(np.int64)
-    ix, iy = np.asarray(ix, np.int64)[:, None, None], np.asarray(iy, np.int64)[:, None, None]
-    yy = np.clip(iy + np.where(along_x, across, run), 0, h - 1)
-    xx = np.clip(ix + np.where(along_x, run, across), 0, w - 1)
-    return yy * w + xx, wts
+    ix, iy = np.asarray(ix, np.int64), np.asarray(iy, np.int64)
+    # the coordinate along the search axis (one per step) and the four across it, clamped
+    run = np.where(along_x, ix, iy)[:, None] + step.astype(np.int64)[None, :]  # (N, K)
+    np.clip(run, 0, np.where(along_x, w - 1, h - 1)[:, None], out=run)
+    across = f[..., 0].astype(np.int64)
+    across += np.where(along_x, iy, ix)[:, None]
+    across = across[:, :, None] + np.arange(-1, 3)[None, None, :]  # (N, K, 4)
+    np.clip(across, 0, np.where(along_x, h - 1, w - 1)[:, None, None], out=across)
+    vx = along_x[:, None, None]
+    run = np.where(along_x[:, None], run, run * w)[:, :, None]
+    return np.where(vx, across * w, across) + run, wts
 
 
 def sample_taps(img: np.ndarray, idx: np.ndarray, wts: np.ndarray) -> np.ndarray:
