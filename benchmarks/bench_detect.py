@@ -15,6 +15,10 @@ returns a dict with
   included);
 * per noise level (``noise0``, ``noise1``, ``noise3``): the figures of
   :func:`nurbscan.detect.evaluate_detection` against the view's truth;
+* ``cpu_per_stage``: CPU time of one thread per stage on the 1x image (``detect_cpu.py
+  --json``, less disturbed by other work than the wall times), side by side with another
+  version of the code when ``NURBSCAN_BENCH_OLD_SRC`` names its ``src`` folder (with the
+  old version's total over this one's, both measured in the same run);
 * ``noise1_jpeg95``: the same for the 1x images saved as JPEG at quality 95 (OpenCV's
   default 4:2:0 chroma subsampling, as cameras write) and read back as ``nurbscan detect``
   reads them (``detect_grid``'s ``chroma_subsampled``, from :func:`nurbscan.io.chroma_subsampled`).
@@ -138,6 +142,11 @@ def bench(noises=(0.0, 1.0, 3.0)) -> dict:
                             str(paths[1.0 if 1.0 in paths else noises[0]])],
                            capture_output=True, text=True, check=True)
     out.update(json.loads(child.stdout.strip().splitlines()[-1]))
+    cmd = [sys.executable, str(Path(__file__).resolve().parent / "detect_cpu.py"), "--json"]
+    if os.environ.get("NURBSCAN_BENCH_OLD_SRC"):
+        cmd += ["--old", os.environ["NURBSCAN_BENCH_OLD_SRC"]]
+    cpu = subprocess.run(cmd, capture_output=True, text=True, check=True)
+    out["cpu_per_stage"] = json.loads(cpu.stdout.strip().splitlines()[-1])
     for n in noises:
         out[f"noise{n:g}"] = {k: round(v, 4) for k, v in figures(paths[n]).items()}
     if 1.0 in paths:

@@ -9,9 +9,10 @@ the CPU clock. With ``--old SRC`` (a ``src`` folder of another checkout, e.g. fr
 and the two are called alternately, so that both see the same load; the result hashes
 (``detect_hash.py``) of the two are compared.
 
-Usage: ``PYTHONPATH=src python benchmarks/detect_cpu.py [--old /tmp/old/src] [--calls 3]``
-(the view cached as ``bench_detect.py`` caches it; prints one line per stage: the minimum
-over the warm calls, CPU s).
+Usage: ``PYTHONPATH=src python benchmarks/detect_cpu.py [--old /tmp/old/src] [--calls 3]
+[--json]`` (the view cached as ``bench_detect.py`` caches it; prints one line per stage: the
+minimum over the warm calls, CPU s; with ``--json`` one JSON line instead, with the old
+version's total over the new one's and the machine's load average before and after).
 """
 
 from __future__ import annotations
@@ -64,7 +65,9 @@ def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--old", type=Path, help="src folder of the version to compare with")
     ap.add_argument("--calls", type=int, default=3, help="warm calls of each version")
+    ap.add_argument("--json", action="store_true", help="print one JSON line")
     args = ap.parse_args(argv)
+    load0 = os.getloadavg()[0]
     cv2.setNumThreads(1)
     bd = _load("bench_detect", HERE / "bench_detect.py")
     dh = _load("detect_hash", HERE / "detect_hash.py")
@@ -96,6 +99,19 @@ def main(argv: list[str]) -> None:
                     totals[name].append(t)
                 hashes[name] = dh.result_hashes(r)[0]
     names = [n for n, _ in versions]
+    if args.json:
+        import json
+
+        cpu = {n: {**{k: round(min(s[k] for s in stages[n]), 4) for k in stages[n][0]},
+                   "total": round(min(totals[n]), 4)} for n in names}
+        out = {"what": f"CPU s of one thread, min of {args.calls} warm calls per stage",
+               "cpu_s": cpu, "hash": hashes, "same_results": len(set(hashes.values())) == 1,
+               "load_average_1min": {"before": round(load0, 2),
+                                     "after": round(os.getloadavg()[0], 2)}}
+        if "old" in cpu:
+            out["old_total_over_new"] = round(cpu["old"]["total"] / cpu["new"]["total"], 3)
+        print(json.dumps(out))
+        return
     print(f"{'stage':14s} " + " ".join(f"{n:>7s}" for n in names) + "   CPU s, min of "
           f"{args.calls} warm calls")
     for key in stages[names[0]][0]:

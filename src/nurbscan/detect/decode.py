@@ -194,31 +194,54 @@ def oblique_runs(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.n
     h, w = shape
     u = np.asarray(direction, np.float64)
     u = u / np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-12)[:, None]
-    # raster of the points, each also in the 8 pixels around its own (where no point is)
-    grid = np.full((h + 2, w + 2), -1, np.int32)
+    steps = np.arange(0.5, max(float(reach), 0.5) + 0.25, 0.5)
+    # raster of the points, each also in the 8 pixels around its own (where no point is),
+    # over the (H + 2, W + 2) image with a border of -1; only the window of it that the rays
+    # can reach is stored (rows y0.., columns x0..: the same hits)
     gx = np.clip(np.rint(x).astype(np.int64), -1, w) + 1
     gy = np.clip(np.rint(y).astype(np.int64), -1, h) + 1
+    m = int(np.ceil(steps[-1])) + 3
+    y0, x0 = max(int(gy.min()) - m, 0), max(int(gx.min()) - m, 0)
+    y1, x1 = min(int(gy.max()) + m + 1, h + 2), min(int(gx.max()) + m + 1, w + 2)
+    gw = x1 - x0
+    grid = np.full((y1 - y0, gw), -1, np.int32)
     idx = np.arange(n, dtype=np.int32)
     for dy, dx in ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)):
-        grid[np.clip(gy + dy, 0, h + 1), np.clip(gx + dx, 0, w + 1)] = idx
-    grid[gy, gx] = idx
-    grid[0, :] = grid[-1, :] = -1
-    grid[:, 0] = grid[:, -1] = -1
+        grid[np.clip(gy + dy, 0, h + 1) - y0, np.clip(gx + dx, 0, w + 1) - x0] = idx
+    grid[gy - y0, gx - x0] = idx
+    if y0 == 0:
+        grid[0, :] = -1
+    if y1 == h + 2:
+        grid[-1, :] = -1
+    if x0 == 0:
+        grid[:, 0] = -1
+    if x1 == w + 2:
+        grid[:, -1] = -1
+    grid = grid.ravel()
+    itype = np.int32 if grid.size < 2**31 else np.int64
     succ = np.full(n, -1, np.int64)
     perp_of = np.full(n, np.inf)
     active = np.arange(n)
-    steps = np.arange(0.5, max(float(reach), 0.5) + 0.25, 0.5)
     for c0 in range(0, len(steps), 8):
         if not len(active):
             break
         st = steps[c0:c0 + 8]
         xa, ya, ua = x[active], y[active], u[active]
-        sx = np.clip(np.rint(xa[:, None] + st * ua[:, :1]).astype(np.int64), -1, w) + 1
-        sy = np.clip(np.rint(ya[:, None] + st * ua[:, 1:]).astype(np.int64), -1, h) + 1
-        j = grid[sy, sx].astype(np.int64)  # (A, C): the points met, in step order
-        hit = (j >= 0) & (line[np.maximum(j, 0)] != line[active][:, None])
-        ri, ci = np.nonzero(hit)  # row-major: each ray's hits in step order
-        jj = j[ri, ci]
+        # the samples' raster pixels (rounded, clamped to the border ring), flat
+        sx = st * ua[:, :1]
+        sx += xa[:, None]
+        sy = st * ua[:, 1:]
+        sy += ya[:, None]
+        for a, top in ((sx, w), (sy, h)):
+            np.rint(a, out=a)
+            np.clip(a, -1, top, out=a)
+        flat = (sy.astype(itype) + (1 - y0)) * gw + (sx.astype(itype) + (1 - x0))
+        del sx, sy
+        j = np.take(grid, flat)  # (A, C): the points met, in step order
+        ri, ci = np.nonzero(j >= 0)  # row-major: each ray's hits in step order
+        jj = j[ri, ci].astype(np.int64)
+        other = line[jj] != line[active[ri]]  # (a point does not meet its own chain)
+        ri, jj = ri[other], jj[other]
         rx, ry = x[jj] - xa[ri], y[jj] - ya[ri]
         s = rx * ua[ri, 0] + ry * ua[ri, 1]
         pp = np.abs(rx * ua[ri, 1] - ry * ua[ri, 0])

@@ -63,6 +63,30 @@ from ..errors import NurbscanError
 #: Edge classes: (direction, edge) -> class id.
 CLASSES = {("v", 0): 0, ("v", 1): 1, ("h", 0): 2, ("h", 1): 3}
 
+#: Side of the tiles of :func:`family_normals` in :func:`detect_edge_points`, camera px.
+FAMILY_TILE = 48
+
+
+def work_window(mask: np.ndarray, margin: int, tile: int = 1) -> tuple[slice, slice]:
+    """The rows and columns of ``mask`` (H, W) that hold its True pixels, widened by
+    ``margin`` px on each side and to multiples of ``tile`` px from the image's origin (an
+    image-sized window where ``mask`` has no True pixel).
+
+    The filters of :func:`gradient` and the tile histograms of :func:`family_normals` give the
+    same values inside such a window as over the whole image (the window's own border lies
+    ``margin`` px away from every pixel that counts), at the cost of the window's pixels only:
+    on the 7.1 MP teapot views the projector lights about 14 % of the image, in a window of
+    about a third of it.
+    """
+    h, w = mask.shape
+    x, y, bw, bh = cv2.boundingRect(np.ascontiguousarray(mask, np.bool_).view(np.uint8))
+    if bw == 0 or bh == 0:
+        return slice(0, h), slice(0, w)
+    y0, x0 = max(y - margin, 0) // tile * tile, max(x - margin, 0) // tile * tile
+    y1 = min(-(-(y + bh + margin) // tile) * tile, h)
+    x1 = min(-(-(x + bw + margin) // tile) * tile, w)
+    return slice(y0, y1), slice(x0, x1)
+
 
 def gaussian_kernels(sigma: float) -> tuple[np.ndarray, np.ndarray]:
     """Sampled Gaussian ``G`` and derivative ``G'`` kernels (radius ceil(4 sigma)), float32."""
@@ -216,8 +240,8 @@ def family_normals(gx: np.ndarray, gy: np.ndarray, strong: np.ndarray, tile: int
     return np.where(two, tv, 0.0), np.where(two, th, np.pi / 2)
 
 
-def across_operators(theta_v: np.ndarray, theta_h: np.ndarray, shape: tuple[int, int]
-                     ) -> tuple[np.ndarray, np.ndarray]:
+def across_operators(theta_v: np.ndarray, theta_h: np.ndarray, shape: tuple[int, int],
+                     tile: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-pixel vectors that take each family's own edge derivative from the gradient.
 
     With the families' unit normals ``n_v``, ``n_h`` (angles ``theta_v``, ``theta_h`` per tile,
@@ -232,6 +256,10 @@ def across_operators(theta_v: np.ndarray, theta_h: np.ndarray, shape: tuple[int,
     maximum of ``|a|`` along the row lies on the vertical edge as that of ``|g_x|`` does
     on an upright grid. ``n_v . m_v`` is the sine of the angle between the families and is
     kept at least 0.25 (14.5 degrees).
+
+    ``tile`` is the tiles' side in px (their centres at ``tile * (i + 1/2) - 1/2``, the
+    last tile of a row or column possibly cut by the image's border); None spreads the tiles
+    evenly over ``shape``.
 
     Returns
     -------
@@ -249,14 +277,20 @@ def across_operators(theta_v: np.ndarray, theta_h: np.ndarray, shape: tuple[int,
         dot = (m * n_own).sum(0)
         m = np.where(dot < 0, -m, m)
         a = m / np.maximum(np.abs(dot), 0.25)
-        out.append(tuple(_tiles_to_pixels(c, (h, w)) for c in a))
+        out.append(tuple(_tiles_to_pixels(c, (h, w), tile) for c in a))
     return out[0], out[1]
 
 
-def _tiles_to_pixels(values: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Per-tile values (ty, tx) spread over the (H, W) pixels, bilinearly (float32)."""
-    return cv2.resize(np.asarray(values, np.float32), (shape[1], shape[0]),
-                      interpolation=cv2.INTER_LINEAR)
+def _tiles_to_pixels(values: np.ndarray, shape: tuple[int, int], tile: int | None = None
+                     ) -> np.ndarray:
+    """Per-tile values (ty, tx) spread over the (H, W) pixels, bilinearly (float32): tiles of
+    ``tile`` px from the origin (the last ones cut by the border), or stretched over the
+    image (None)."""
+    v = np.asarray(values, np.float32)
+    if tile is None:
+        return cv2.resize(v, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+    out = cv2.resize(v, (v.shape[1] * tile, v.shape[0] * tile), interpolation=cv2.INTER_LINEAR)
+    return out[:shape[0], :shape[1]]
 
 
 #: Largest |slope| of a fit line (:func:`fit_slopes`), px per px. The model of the module
@@ -349,24 +383,31 @@ def line_taps(ix: np.ndarray, iy: np.ndarray, axis, slope: np.ndarray, step,
        Trans. Acoustics, Speech and Signal Processing 29(6), 1153-1160, 1981.
     """
     h, w = shape
-    step = np.asarray(step, np.float64)[None, :, None]
-    along_x = (np.broadcast_to(np.asarray(axis), np.shape(ix)) == 0)[:, None, None]
-    off = np.asarray(slope, np.float64)[:, None, None] * step
+    step = np.asarray(step, np.float64)
+    along_x = np.broadcast_to(np.asarray(axis), np.shape(ix)) == 0
+    off = np.asarray(slope, np.float64)[:, None, None] * step[None, :, None]
     f = np.floor(off)
     t = off - f
     wts = np.concatenate([((-0.5 * t + 1.0) * t - 0.5) * t, (1.5 * t - 2.5) * t * t + 1.0,
                           ((-1.5 * t + 2.0) * t + 0.5) * t, (0.5 * t - 0.5) * t * t], axis=2)
-    across = f.astype(np.int64) + np.arange(-1, 3)[None, None, :]  # (N, K, 4)
-    run = step.astype(np.int64)
-    ix, iy = np.asarray(ix, np.int64)[:, None, None], np.asarray(iy, np.int64)[:, None, None]
-    yy = np.clip(iy + np.where(along_x, across, run), 0, h - 1)
-    xx = np.clip(ix + np.where(along_x, run, across), 0, w - 1)
-    return yy * w + xx, wts
+    ix, iy = np.asarray(ix, np.int64), np.asarray(iy, np.int64)
+    # the coordinate along the search axis (one per step) and the four across it, clamped
+    run = np.where(along_x, ix, iy)[:, None] + step.astype(np.int64)[None, :]  # (N, K)
+    np.clip(run, 0, np.where(along_x, w - 1, h - 1)[:, None], out=run)
+    across = f[..., 0].astype(np.int64)
+    across += np.where(along_x, iy, ix)[:, None]
+    across = across[:, :, None] + np.arange(-1, 3)[None, None, :]  # (N, K, 4)
+    np.clip(across, 0, np.where(along_x, h - 1, w - 1)[:, None, None], out=across)
+    vx = along_x[:, None, None]
+    run = np.where(along_x[:, None], run, run * w)[:, :, None]
+    return np.where(vx, across * w, across) + run, wts
 
 
 def sample_taps(img: np.ndarray, idx: np.ndarray, wts: np.ndarray) -> np.ndarray:
     """``img`` (H, W) sampled with the taps of :func:`line_taps`, float64 (N, K)."""
-    return (img.ravel()[idx] * wts).sum(axis=2)
+    s = np.take(img.ravel(), idx).astype(np.float64)
+    s *= wts
+    return ((s[..., 0] + s[..., 1]) + s[..., 2]) + s[..., 3]  # (numpy's sum of 4, in order)
 
 
 def _along_line(img: np.ndarray, ix: np.ndarray, iy: np.ndarray, axis: int,
@@ -405,7 +446,8 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         Least gradient magnitude of an edge, per px of the signal (a unit step blurred to a total
         scale t has a peak gradient 1 / (t sqrt(2 pi)), about 0.3 for t = 1.3).
     valid : ndarray (H, W) of bool, optional
-        Pixels where edges may be found.
+        Pixels where edges may be found; the filters run over their window only
+        (:func:`work_window`: the same points).
     dominance : float
         A pixel is a vertical-edge candidate where ``|gx| >= dominance |gy|`` and a
         horizontal-edge candidate where ``|gy| > dominance |gx|``; below 1 a pixel may be both
@@ -443,13 +485,22 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     """
     if fit_line not in ("balanced", "row"):
         raise NurbscanError(f"fit_line={fit_line!r}: must be 'balanced' or 'row'")
+    # the filters reflect the image at its border: no edges within 3 sigma + 1 px of it
+    b = int(np.ceil(3.0 * max(sigma, sigma_along or 0.0))) + 1
+    oy = ox = 0
+    if valid is not None:
+        # the work over the valid pixels' window only (:func:`work_window`: the same points)
+        valid = np.array(valid, bool)
+        valid[:b] = valid[-b:] = False
+        valid[:, :b] = valid[:, -b:] = False
+        r = max(int(np.ceil(4.0 * max(sigma, sigma_along or 0.0))), 1)
+        rows, cols = work_window(valid, 2 * FAMILY_TILE + r + 8, FAMILY_TILE)
+        signal, valid, oy, ox = signal[rows, cols], valid[rows, cols], rows.start, cols.start
     gx, gy = gradient(signal, sigma, sigma_along)
     h, w = gx.shape
     strong = cv2.magnitude(gx, gy) > threshold  # (the magnitude is not kept)
     if valid is not None:
         strong &= valid
-    # the filters reflect the image at its border: no edges within 3 sigma + 1 px of it
-    b = int(np.ceil(3.0 * max(sigma, sigma_along or 0.0))) + 1
     strong[:b] = strong[-b:] = False
     strong[:, :b] = strong[:, -b:] = False
     dv, dh = gx, gy
@@ -458,14 +509,15 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         # the gradient's components along the two families' local normals
         sy, sx = np.nonzero(strong)
         gxs, gys = gx[sy, sx], gy[sy, sx]
-        tv, th = family_normals(gx, gy, strong, pixels=(sy, sx, gxs, gys))
+        tv, th = family_normals(gx, gy, strong, FAMILY_TILE, pixels=(sy, sx, gxs, gys))
         # |g . n|^2 = (|g|^2 + (gx^2 - gy^2) cos 2t + 2 gx gy sin 2t) / 2 for n at angle t,
         # with the doubled-angle vectors interpolated bilinearly between the tiles
         mag2, diff2, prod2 = gxs * gxs + gys * gys, gxs * gxs - gys * gys, 2.0 * gxs * gys
         del gxs, gys
         comp = []
         for t in (tv, th):
-            c2, s2 = (_tiles_to_pixels(f(2 * t), (h, w))[sy, sx] for f in (np.cos, np.sin))
+            c2, s2 = (_tiles_to_pixels(f(2 * t), (h, w), FAMILY_TILE)[sy, sx]
+                      for f in (np.cos, np.sin))
             r = np.hypot(c2, s2)
             comp.append(mag2 + (diff2 * c2 + prod2 * s2) / np.where(r > 0, r, 1.0))
         vmask = np.zeros((h, w), bool)
@@ -485,7 +537,7 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
             # each family's edges by its own gradient component, the derivative along the
             # other family's edges (the peaks of g_x, g_y move where a tilted crossing band's
             # edge adds to them)
-            av, ah = across_operators(tv, th, (h, w))
+            av, ah = across_operators(tv, th, (h, w), FAMILY_TILE)
             dv = gx * av[0]
             dv += gy * av[1]
             dh = gx * ah[0]
@@ -538,9 +590,10 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
             # px); the bound grows with the slope from the row's 0.5
             limit = np.minimum(1.0, 0.5 + 2.0 * np.abs(sl))
         d = _subpixel(lm, l0, lp, limit)
-        x, y = (ix + d, iy + d * sl) if axis == 0 else (ix + d * sl, iy + d)
+        jx, jy = ix + ox, iy + oy  # (the image's pixels)
+        x, y = (jx + d, jy + d * sl) if axis == 0 else (jx + d * sl, jy + d)
         ratio = vratio(iy, ix) if axis == 0 else 1.0 / np.maximum(vratio(iy, ix), 1e-10)
-        out.append((x, y, ix, iy, np.where(der[iy, ix] > 0, cls0, cls0 + 1), amp[iy, ix],
+        out.append((x, y, jx, jy, np.where(der[iy, ix] > 0, cls0, cls0 + 1), amp[iy, ix],
                     gx[iy, ix], gy[iy, ix], ratio, operator(a_own, axis, iy, ix), sl))
     cat = [np.concatenate([o[k] for o in out]) for k in range(11)]
     return EdgePoints(x=cat[0].astype(np.float64), y=cat[1].astype(np.float64),
@@ -627,16 +680,27 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
         across = axes
     ux, uy = (np.asarray(across, np.float64).T[:, :, None] * sgn[None, :, None])
 
+    # the filters over the points' window only (the same values there as over the image):
+    # the reach of the filters and of the taps (a step and a cubic tap across) around them
+    h, w = getattr(channels, "shape", None) or channels[0].shape
+    m = max(int(np.ceil(4.0 * max(sigma, sigma_along or 0.0))), 1) + 8
+    rows = slice(max(int(iy.min()) - m, 0), min(int(iy.max()) + m + 1, h))
+    cols = slice(max(int(ix.min()) - m, 0), min(int(ix.max()) + m + 1, w))
+    if hasattr(channels, "crop"):
+        channels = channels.crop(rows, cols)
+    else:
+        channels = _Cropped(channels, rows, cols)
+    jx, jy = ix - cols.start, iy - rows.start
     taps = None
     for c in range(3):
         img = channels[c]  # (a lazy sequence computes each plane here: one at a time)
         if taps is None:
             # (N, 3): the samples along each point's fit line, from taps shared by the images
-            taps = line_taps(ix, iy, np.where(vert, 0, 1), sl, steps, img.shape)
+            taps = line_taps(jx, jy, np.where(vert, 0, 1), sl, steps, img.shape)
         gx, gy = gradient(img, sigma, sigma_along)
         del img
         prof = sample_taps(gx, *taps) * ux + sample_taps(gy, *taps) * uy
-        cx, cy = gx[iy, ix], gy[iy, ix]
+        cx, cy = gx[jy, jx], gy[jy, jx]
         along = nx * cy - ny * cx
         normal_d = nx * cx + ny * cy
         mag.append(prof[:, 1])
@@ -652,3 +716,13 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     x = np.where(peak, np.where(vert, ix + d, ix + d * sl), x)
     y = np.where(peak, np.where(vert, iy + d * sl, iy + d), y)
     return x, y, peak
+
+
+class _Cropped:
+    """The window ``(rows, cols)`` of each of a sequence of images, taken when indexed."""
+
+    def __init__(self, images, rows: slice, cols: slice):
+        self._images, self._rows, self._cols = images, rows, cols
+
+    def __getitem__(self, c: int) -> np.ndarray:
+        return self._images[c][self._rows, self._cols]
