@@ -19,6 +19,8 @@ Usage::
   1800 s): each benchmark may use what is left, one still running when it runs out is stopped
   and reported as such; benchmarks not started are listed as skipped.
 * ``--quick``: ``NURBSCAN_BENCH_QUICK=1`` (reduced image sizes, for development).
+* ``--render``: run nothing, rewrite RESULTS.md from ``results.json`` (after adding the
+  figures of a benchmark run on its own, ``python benchmarks/bench_X.py``).
 
 The file starts with the targets of the issues beside the measured figures (:data:`TARGETS`).
 """
@@ -286,6 +288,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--budget", type=float,
                     default=float(os.environ.get("NURBSCAN_BENCH_BUDGET", "1800")))
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--render", action="store_true",
+                    help="run nothing: rewrite RESULTS.md from results.json")
     args = ap.parse_args(argv)
     env = dict(os.environ)
     if args.repeat is not None:
@@ -295,6 +299,8 @@ def main(argv: list[str]) -> int:
     files = sorted(HERE.glob("bench_*.py"))
     if args.names:
         files = [f for f in files if f.stem.removeprefix("bench_") in args.names]
+    if args.render:
+        files = []
     t_start = time.perf_counter()
     results: dict = {}
     stamp = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
@@ -333,7 +339,7 @@ def main(argv: list[str]) -> int:
         "",
     ]
     json_path = HERE / "results.json"
-    if args.names and not args.quick:  # keep the benchmarks not re-run from the last run
+    if (args.names or args.render) and not args.quick:  # keep those not re-run
         results = {**_load_previous(json_path), **results}
     lines += target_rows(results)
     failed = False
