@@ -9,6 +9,9 @@ coincide, only the best patch, and cuts every patch back to its measured data:
 2. **Support (patch borders).** A cell whose centre lies farther than ``support_pitch``
    pitches from every triangulated edge point of its own view (the measured data) is cut: a
    patch's border rows can run past the data (a curve extrapolated below a base contour).
+   So is a cell whose nearest own edge points lie off it by more than ``residual_sigma``
+   robust standard deviations of its view's residuals (the surface does not follow its
+   data there); a better-scored cell of another view then takes its place.
 3. **Score.** Each patch gets one score, ``cos(theta) - rms / pitch``: ``theta`` the mean
    angle between its normals and the directions to its view's camera (most frontal first),
    ``rms`` the RMS point-to-plane distance of its view's edge points to it (the fit's own
@@ -49,6 +52,10 @@ class CadOptions:
         Size of the ownership cells on the surface, mm (the seams' resolution).
     support_pitch : float
         Cells farther than this many pitches from their view's edge points are cut.
+    residual_sigma : float or None
+        Cells whose own edge points lie farther from them (local median point-to-plane
+        distance) than this many robust standard deviations of their view's are cut: the
+        surface there does not follow its data (None: no such cut).
     cover_mm : float
         A cell lies on another patch's cell when their centres are this close (mm): more
         than ``cell_mm / sqrt(2)`` (a layer's cells are offset anywhere), less than
@@ -61,6 +68,7 @@ class CadOptions:
 
     cell_mm: float = 0.3
     support_pitch: float = 0.5
+    residual_sigma: float | None = 4.0
     cover_mm: float = 0.24
     neighbours: int = 12
     max_cells: int = 400
@@ -122,7 +130,8 @@ def cad_set(model, rig=None, options: CadOptions | None = None, progress=None) -
     N = np.concatenate([c["normals"] for c in cells])
     owner = np.concatenate([np.full(len(c["points"]), k) for k, c in enumerate(cells)])
     view = np.array([int(s["view"]) for s in gordon])
-    supported = _supported(model, P, view[owner], opt.support_pitch * pitch)
+    supported = _supported(model, P, N, view[owner], opt.support_pitch * pitch,
+                           opt.residual_sigma)
     score = _scores(model, rig, gordon, cells, P, N, owner, view, pitch, _camera_centres)
     covered = _covered(P, N, owner, view, score, supported, opt)
     keep = supported & ~covered
@@ -171,19 +180,35 @@ def _cells(S: NurbsSurface, opt: CadOptions) -> dict:
             "shape": (nu, nv)}
 
 
-def _supported(model, P: np.ndarray, pview: np.ndarray, reach: float) -> np.ndarray:
-    """Cells within ``reach`` mm of an edge point of their own view."""
+def _supported(model, P: np.ndarray, N: np.ndarray, pview: np.ndarray, reach: float,
+               residual_sigma: float | None) -> np.ndarray:
+    """Cells within ``reach`` mm of an edge point of their own view and, with
+    ``residual_sigma``, whose local residual (median point-to-plane distance of their 6
+    nearest own edge points within ``reach``) is at most ``residual_sigma`` robust standard
+    deviations (1.4826 times the median over the view's cells) of the view's residuals."""
     edges = np.asarray(model.edge_points, float).reshape(-1, 3)
     ev = np.asarray(model.edge_view, int)
     if len(edges) == 0:
         return np.ones(len(P), bool)
     ok = np.zeros(len(P), bool)
     for v in np.unique(pview):
-        sel = pview == v
+        sel = np.flatnonzero(pview == v)
         E = edges[ev == v]
-        if len(E):
-            d, _ = cKDTree(E).query(P[sel], distance_upper_bound=reach)
-            ok[sel] = np.isfinite(d)
+        if len(E) == 0:
+            continue
+        k = min(6, len(E))
+        d, i = cKDTree(E).query(P[sel], k=k, distance_upper_bound=reach)
+        d, i = d.reshape(len(sel), k), i.reshape(len(sel), k)
+        near = np.isfinite(d)
+        ok[sel] = near[:, 0]
+        if residual_sigma is None or not near[:, 0].any():
+            continue
+        r = np.abs(((E[np.where(near, i, 0)] - P[sel][:, None]) * N[sel][:, None]).sum(-1))
+        r = np.where(near, r, np.inf)
+        cnt = near.sum(1)
+        med = np.sort(r, axis=1)[np.arange(len(sel)), np.maximum((cnt - 1) // 2, 0)]
+        sigma = 1.4826 * np.median(med[near[:, 0]])
+        ok[sel] &= med <= residual_sigma * sigma
     return ok
 
 
