@@ -135,3 +135,15 @@ def test_merge_cli_writes_a_model_folder_or_nothing(teapot_passes, tmp_path, cap
     assert len(doc["views"]) == 4 and doc["meta"]["passes"]["passes"][1]["overlap"] > 0.25
     al = json.loads((out / "alignment.json").read_text())
     assert al["type"] == "nurbscan.alignment" and len(al["passes"]) == 2
+
+
+def test_report_view_table_takes_views_without_truth():
+    """A merged model's second-pass views have no truth in the first pass's scan: evaluate
+    gives them coverage None and the report shows '-' (it raised a TypeError)."""
+    from nurbscan.report.html import _views_html
+
+    model = Model(views=[{"index": 0, "table_angle": 0.0}, {"index": 100, "table_angle": 0.0}])
+    ev = {"views": [{"index": 0, "coverage": 0.5, "gordon": 0.01},
+                    {"index": 100, "coverage": None, "gordon": 0.02}]}
+    html = _views_html(model, ev)
+    assert "50.0%" in html and html.count("<tr>") == 3

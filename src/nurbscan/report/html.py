@@ -132,7 +132,7 @@ def _views_html(model, ev: dict | None) -> str:
         cells = [k, _fmt(np.degrees(float(v.get("table_angle", 0.0))), 1),
                  v.get("network_lines", ["-", "-"]), v.get("patches", "-"),
                  _fmt(v.get("rms2d_px")), _fmt(e.get("gordon")),
-                 "-" if "coverage" not in e else f"{100 * e['coverage']:.1f}%",
+                 "-" if e.get("coverage") is None else f"{100 * e['coverage']:.1f}%",
                  _fmt(v.get("image_to_gordon_s"), 2)]
         rows.append("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells) + "</tr>")
     head = ("<tr><th>view</th><th>table angle (deg)</th><th>network lines [v, h]</th>"
