@@ -240,8 +240,8 @@ def family_normals(gx: np.ndarray, gy: np.ndarray, strong: np.ndarray, tile: int
     return np.where(two, tv, 0.0), np.where(two, th, np.pi / 2)
 
 
-def across_operators(theta_v: np.ndarray, theta_h: np.ndarray, shape: tuple[int, int],
-                     tile: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def across_operators(theta_v: np.ndarray, theta_h: np.ndarray, shape: tuple[int, int]
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Per-pixel vectors that take each family's own edge derivative from the gradient.
 
     With the families' unit normals ``n_v``, ``n_h`` (angles ``theta_v``, ``theta_h`` per tile,
@@ -256,10 +256,6 @@ def across_operators(theta_v: np.ndarray, theta_h: np.ndarray, shape: tuple[int,
     maximum of ``|a|`` along the row lies on the vertical edge as that of ``|g_x|`` does
     on an upright grid. ``n_v . m_v`` is the sine of the angle between the families and is
     kept at least 0.25 (14.5 degrees).
-
-    ``tile`` is the tiles' side in px (their centres at ``tile * (i + 1/2) - 1/2``, the
-    last tile of a row or column possibly cut by the image's border); None spreads the tiles
-    evenly over ``shape``.
 
     Returns
     -------
@@ -277,20 +273,14 @@ def across_operators(theta_v: np.ndarray, theta_h: np.ndarray, shape: tuple[int,
         dot = (m * n_own).sum(0)
         m = np.where(dot < 0, -m, m)
         a = m / np.maximum(np.abs(dot), 0.25)
-        out.append(tuple(_tiles_to_pixels(c, (h, w), tile) for c in a))
+        out.append(tuple(_tiles_to_pixels(c, (h, w)) for c in a))
     return out[0], out[1]
 
 
-def _tiles_to_pixels(values: np.ndarray, shape: tuple[int, int], tile: int | None = None
-                     ) -> np.ndarray:
-    """Per-tile values (ty, tx) spread over the (H, W) pixels, bilinearly (float32): tiles of
-    ``tile`` px from the origin (the last ones cut by the border), or stretched over the
-    image (None)."""
-    v = np.asarray(values, np.float32)
-    if tile is None:
-        return cv2.resize(v, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
-    out = cv2.resize(v, (v.shape[1] * tile, v.shape[0] * tile), interpolation=cv2.INTER_LINEAR)
-    return out[:shape[0], :shape[1]]
+def _tiles_to_pixels(values: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Per-tile values (ty, tx) spread over the (H, W) pixels, bilinearly (float32)."""
+    return cv2.resize(np.asarray(values, np.float32), (shape[1], shape[0]),
+                      interpolation=cv2.INTER_LINEAR)
 
 
 #: Largest |slope| of a fit line (:func:`fit_slopes`), px per px. The model of the module
@@ -447,7 +437,9 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         scale t has a peak gradient 1 / (t sqrt(2 pi)), about 0.3 for t = 1.3).
     valid : ndarray (H, W) of bool, optional
         Pixels where edges may be found; the filters run over their window only
-        (:func:`work_window`: the same points).
+        (:func:`work_window`: the same points) where the image is a whole number of the
+        families' tiles (``FAMILY_TILE``; the 7.1 MP camera's 3072 x 2304 px is) or without
+        ``families``.
     dominance : float
         A pixel is a vertical-edge candidate where ``|gx| >= dominance |gy|`` and a
         horizontal-edge candidate where ``|gy| > dominance |gx|``; below 1 a pixel may be both
@@ -488,8 +480,11 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     # the filters reflect the image at its border: no edges within 3 sigma + 1 px of it
     b = int(np.ceil(3.0 * max(sigma, sigma_along or 0.0))) + 1
     oy = ox = 0
-    if valid is not None:
-        # the work over the valid pixels' window only (:func:`work_window`: the same points)
+    if valid is not None and (not families or (signal.shape[0] % FAMILY_TILE == 0
+                                               and signal.shape[1] % FAMILY_TILE == 0)):
+        # the work over the valid pixels' window only (:func:`work_window`: the same points;
+        # with families, where the image is a whole number of tiles, which the tiles' values
+        # are spread over: elsewhere the window would spread them differently)
         valid = np.array(valid, bool)
         valid[:b] = valid[-b:] = False
         valid[:, :b] = valid[:, -b:] = False
@@ -516,8 +511,7 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         del gxs, gys
         comp = []
         for t in (tv, th):
-            c2, s2 = (_tiles_to_pixels(f(2 * t), (h, w), FAMILY_TILE)[sy, sx]
-                      for f in (np.cos, np.sin))
+            c2, s2 = (_tiles_to_pixels(f(2 * t), (h, w))[sy, sx] for f in (np.cos, np.sin))
             r = np.hypot(c2, s2)
             comp.append(mag2 + (diff2 * c2 + prod2 * s2) / np.where(r > 0, r, 1.0))
         vmask = np.zeros((h, w), bool)
@@ -537,7 +531,7 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
             # each family's edges by its own gradient component, the derivative along the
             # other family's edges (the peaks of g_x, g_y move where a tilted crossing band's
             # edge adds to them)
-            av, ah = across_operators(tv, th, (h, w), FAMILY_TILE)
+            av, ah = across_operators(tv, th, (h, w))
             dv = gx * av[0]
             dv += gy * av[1]
             dh = gx * ah[0]
