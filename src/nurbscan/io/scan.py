@@ -1,7 +1,8 @@
 """Reading a scan folder's ``scan.json`` (docs/scan-format.md) into a :class:`Scan`.
 
 Every path in ``scan.json`` (pattern, views, calibration poses) is resolved *inside* the scan
-folder: an absolute path or one that leaves the folder (``../``, also through a symbolic link)
+folder: an absolute path or one that leaves the folder (``../``, also through a linked
+folder; the file itself may be a symbolic link)
 is refused with a one-line :class:`~nurbscan.errors.NurbscanError` naming ``scan.json``
 (issue #34). Table angles are returned in radians whatever ``angle_unit`` says.
 """
@@ -207,8 +208,13 @@ def _inside(root: Path, allow: bool, value: Any, src: Path, what: str) -> Path:
             or PureWindowsPath(value).drive):
         raise NurbscanError(f"{src}: {what} {value!r} is absolute; give a path inside the "
                             "scan folder (or allow it: --allow-outside-paths)")
-    p = (root / value).resolve()
-    if p != root and root not in p.parents:
+    # the folders on the way are resolved (a linked folder leading out is refused); the file
+    # itself may be a symbolic link (the real-photograph scans link their read-only images)
+    lex = Path(os.path.normpath(root / value))
+    parent = lex.parent.resolve()
+    p = parent / lex.name
+    if (lex != root and root not in lex.parents) or (parent != root
+                                                     and root not in parent.parents):
         raise NurbscanError(f"{src}: {what} {value!r} leaves the scan folder (allow it: "
                             "--allow-outside-paths)")
     return p
