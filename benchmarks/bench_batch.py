@@ -7,8 +7,8 @@
    serial tasks' own time summed over 2 workers (target: within 1.2 x).
 2. The per-task figures for a full-size scan: one 7.1 MP view (3072 x 2304, the default rig)
    and the finish task of a 2-view 7.1 MP scan, each run in a fresh process for its time and
-   peak resident memory (``ru_maxrss``, less the process's after the imports), and the size of
-   a view's result (what Dask sends from a view's worker to the scan's).
+   peak resident memory (``VmHWM`` reset after the imports, less the process's then), and
+   the size of a view's result (what Dask sends from a view's worker to the scan's).
 3. A scaling model from those figures: 1,000 scans of 24 views at 7.1 MP on N workers.
 
 The machine may be shared (load average in the figures): the times are then the machine's
@@ -144,7 +144,7 @@ def small_batch(root: Path) -> dict:
 
 
 CHILD = """
-import json, resource, sys, time, pickle
+import json, sys, time, pickle
 import warnings; warnings.simplefilter("ignore")
 from pathlib import Path
 from nurbscan.batch import BatchOptions
@@ -158,7 +158,19 @@ job = ScanJob(scan.name, scan, out / scan.name, calib)
 c = calibration_task(job); p = plan_task(job, c, opts)
 if what == "finish":  # the views' results come from a file written by an earlier run
     views = pickle.loads((out / "views.pkl").read_bytes())
-base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+def hwm():  # peak resident memory of this process, MB (VmHWM; ru_maxrss survives exec)
+    for ln in open("/proc/self/status"):
+        if ln.startswith("VmHWM:"):
+            return int(ln.split()[1]) / 1024.0
+def rss():
+    for ln in open("/proc/self/status"):
+        if ln.startswith("VmRSS:"):
+            return int(ln.split()[1]) / 1024.0
+try:  # reset the peak to the present (Linux >= 4.0), so that the peak is this task's
+    open("/proc/self/clear_refs", "w").write("5")
+except OSError:
+    pass
+base = rss()
 t0 = time.perf_counter()
 if what == "view":
     v = view_task(p, 0)
@@ -173,7 +185,7 @@ else:
     res = {"seconds": time.perf_counter() - t0, "parts": r["tasks"]["finish_parts_s"],
            "cpu_seconds": r["tasks"]["cpu_s"]["finish"],
            "patches": r["counts"]["gordon"]}
-res["peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+res["peak_mb"] = hwm()
 res["base_mb"] = base
 print("@@" + json.dumps(res))
 """
