@@ -233,9 +233,9 @@ def test_input_errors_are_one_line(scans, tmp_path, capsys, monkeypatch):
     assert main([*base, str(scans["alpha"]), str(other)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "the same name as" in err[0], err
-    assert main([*base, str(scans["alpha"]), "--export", "glb,step"]) == 2
+    assert main([*base, str(scans["alpha"]), "--export", "glb,wrl"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--export step: unknown format" in err[0], err
+    assert len(err) == 1 and "--export wrl: unknown format" in err[0], err
     # no Dask: the one-line error names what to install
     monkeypatch.setitem(sys.modules, "distributed", None)
     assert main([*base, str(scans["alpha"])]) == 2
