@@ -46,6 +46,7 @@ from .global_registration import (
     motion_difference,
 )
 from .register import RegistrationOptions, register_views
+from .views import move_view
 
 __all__ = ["PassOptions", "merge_passes", "pass_surface", "VIEW_OFFSET"]
 
@@ -286,17 +287,7 @@ def _apply_corrections(model, corrections: dict) -> None:
                                        if k not in ("view",)}
         if np.allclose(c.matrix, np.eye(4), rtol=0, atol=0):
             continue
-        for s in model.surfaces:
-            if s["view"] == v:
-                s["surface"] = moved_surface(s["surface"], R, t)
-        for k in model.curves:
-            if k["view"] == v:
-                k["curve"] = moved_curve(k["curve"], R, t)
-        sel = model.point_view == v
-        model.points[sel] = moved_points(model.points[sel], R, t)
-        model.normals[sel] = model.normals[sel] @ R.T
-        sel = model.edge_view == v
-        model.edge_points[sel] = moved_points(model.edge_points[sel], R, t)
+        move_view(model, v, R, t)
 
 
 def _mean_motion(Ts: list) -> np.ndarray:

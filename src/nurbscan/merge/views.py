@@ -170,17 +170,7 @@ def apply_registration(model, reg: Registration, turntable) -> None:
         R, t = c.matrix[:3, :3], c.matrix[:3, 3]
         moved = not np.allclose(c.matrix, np.eye(4), rtol=0, atol=0)
         if moved:
-            for s in model.surfaces:
-                if s["view"] == v:
-                    s["surface"] = moved_surface(s["surface"], R, t)
-            for k in model.curves:
-                if k["view"] == v:
-                    k["curve"] = moved_curve(k["curve"], R, t)
-            sel = model.point_view == v
-            model.points[sel] = moved_points(model.points[sel], R, t)
-            model.normals[sel] = model.normals[sel] @ R.T
-            sel = model.edge_view == v
-            model.edge_points[sel] = moved_points(model.edge_points[sel], R, t)
+            move_view(model, v, R, t)
         M, p = object_transform(turntable, float(entry["table_angle"]))
         Rp = R @ M.T
         entry["registration"] = {k: val for k, val in c.to_dict().items()
@@ -188,3 +178,19 @@ def apply_registration(model, reg: Registration, turntable) -> None:
         entry["registered_table_angle"] = float(entry["table_angle"]
                                                 - np.radians(c.axis_angle))
         entry["object_from_rig"] = {"R": Rp.tolist(), "t": (t - Rp @ p).tolist()}
+
+
+def move_view(model, view: int, R: np.ndarray, t: np.ndarray) -> None:
+    """Move one view's surfaces, curves, points (with normals) and edge points in place by
+    ``X -> R X + t`` (R (3, 3), t (3,) mm), object frame."""
+    for s in model.surfaces:
+        if s["view"] == view:
+            s["surface"] = moved_surface(s["surface"], R, t)
+    for k in model.curves:
+        if k["view"] == view:
+            k["curve"] = moved_curve(k["curve"], R, t)
+    sel = model.point_view == view
+    model.points[sel] = moved_points(model.points[sel], R, t)
+    model.normals[sel] = model.normals[sel] @ R.T
+    sel = model.edge_view == view
+    model.edge_points[sel] = moved_points(model.edge_points[sel], R, t)
