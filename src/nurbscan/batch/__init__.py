@@ -58,6 +58,13 @@ __all__ = [
 #: Where to install Dask from, in the one-line error when it is missing.
 NEEDS_DASK = "needs dask.distributed (pip install 'nurbscan[batch]')"
 
+#: Dask settings of the ``LocalCluster``'s workers: Dask's sampling profiler (a walk of the
+#: task's stack every 10 ms) is off; the tasks' times are in each scan's report.
+WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
+#: What each worker runs when it starts (``dask worker --preload``): glibc's memory reuse as in
+#: ``nurbscan reconstruct``, and the tasks' imports (:mod:`nurbscan.batch.preload`).
+WORKER_PRELOAD = ("nurbscan.batch.preload",)
+
 
 def scan_jobs(scans: Sequence[str | os.PathLike], out: str | os.PathLike,
               calib: str | os.PathLike | None = None) -> list[ScanJob]:
@@ -123,8 +130,12 @@ def dask_client(scheduler: str | None = None, workers: int = 2) -> Iterator:
         return
     if workers < 1:
         raise NurbscanError(f"--workers {workers}: must be at least 1")
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                      dashboard_address=":8787", silence_logs=logging.ERROR) as cluster, \
+    import dask
+
+    with dask.config.set(WORKER_CONFIG), \
+            LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                         dashboard_address=":8787", silence_logs=logging.ERROR,
+                         preload=list(WORKER_PRELOAD)) as cluster, \
             Client(cluster) as client:
         yield client
 
