@@ -652,6 +652,20 @@ def scan_view(scene, rig, angle: float = 0.0, *, calibrated_rig=None, code: Gray
     t1 = time.perf_counter()
     pts, pix = triangulate(col, calibrated_rig or rig)
     t2 = time.perf_counter()
+    return {**view_figures(cap, pts, pix, scene, rig, angle, settings, error_sample),
+            "images": code.n_images, "decode_s": t1 - t0, "triangulate_s": t2 - t1,
+            "time_per_view_s": t2 - t0, "column": col}
+
+
+def view_figures(cap, pts: np.ndarray, pix: np.ndarray, scene, rig, angle: float, settings,
+                 error_sample: int | None) -> dict[str, Any]:
+    """One decoded view against its truth (a peer method's :func:`scan_view`'s common part).
+
+    ``coverage`` is the share of the lit object pixels (``cap.truth``) that gave a point;
+    ``error`` the :func:`error_stats` of :func:`world_error` over at most ``error_sample``
+    points (a seeded random subset). Also ``points``, ``error_points``, ``render_s``,
+    ``points_rig`` (N, 3) and ``pixels`` (N,) and the ``capture``.
+    """
     tr = cap.truth
     target = (tr["lit"] & (tr["surface_id"] >= 0)).ravel()
     tab = getattr(settings, "table_radius", 150.0) if settings is None or settings.table else None
@@ -659,8 +673,7 @@ def scan_view(scene, rig, angle: float = 0.0, *, calibrated_rig=None, code: Gray
     if error_sample is not None and len(pts) > error_sample:
         sub = pts[np.random.default_rng(0).choice(len(pts), int(error_sample), replace=False)]
     err = world_error(sub, scene, rig, angle, tab)
-    return {"images": code.n_images, "points": int(len(pts)), "error_points": int(len(sub)),
+    return {"points": int(len(pts)), "error_points": int(len(sub)),
             "coverage": float(np.isin(np.flatnonzero(target), pix).sum() / max(target.sum(), 1)),
-            "error": error_stats(err), "decode_s": t1 - t0, "triangulate_s": t2 - t1,
-            "time_per_view_s": t2 - t0, "render_s": cap.stats["render_s"],
-            "points_rig": pts, "pixels": pix, "capture": cap, "column": col}
+            "error": error_stats(err), "render_s": cap.stats["render_s"],
+            "points_rig": pts, "pixels": pix, "capture": cap}

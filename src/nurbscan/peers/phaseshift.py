@@ -65,7 +65,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import NurbscanError
-from .graycode import StripeCapture, _runs, error_stats, render_stripe_images, world_error
+from .graycode import StripeCapture, _runs, render_stripe_images, view_figures
 
 TYPE = "nurbscan.phase_shift"
 VERSION = 1
@@ -408,15 +408,6 @@ def scan_view(scene, rig, angle: float = 0.0, *, calibrated_rig=None,
     t1 = time.perf_counter()
     pts, pix = triangulate(col, row, calibrated_rig or rig, code.epipolar_tolerance)
     t2 = time.perf_counter()
-    tr = cap.truth
-    target = (tr["lit"] & (tr["surface_id"] >= 0)).ravel()
-    tab = getattr(settings, "table_radius", 150.0) if settings is None or settings.table else None
-    sub = pts
-    if error_sample is not None and len(pts) > error_sample:
-        sub = pts[np.random.default_rng(0).choice(len(pts), int(error_sample), replace=False)]
-    err = world_error(sub, scene, rig, angle, tab)
-    return {"images": code.n_images, "points": int(len(pts)), "error_points": int(len(sub)),
-            "coverage": float(np.isin(np.flatnonzero(target), pix).sum() / max(target.sum(), 1)),
-            "error": error_stats(err), "decode_s": t1 - t0, "triangulate_s": t2 - t1,
-            "time_per_view_s": t2 - t0, "render_s": cap.stats["render_s"],
-            "points_rig": pts, "pixels": pix, "capture": cap, "column": col, "row": row}
+    return {**view_figures(cap, pts, pix, scene, rig, angle, settings, error_sample),
+            "images": code.n_images, "decode_s": t1 - t0, "triangulate_s": t2 - t1,
+            "time_per_view_s": t2 - t0, "column": col, "row": row}
