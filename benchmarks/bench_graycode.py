@@ -77,6 +77,11 @@ def _rig():
     rig = default_rig()
     if QUICK:
         rig = scale_camera(rig, 1536, 1152)
+    return with_calibration(rig)
+
+
+def with_calibration(rig):
+    """(true rig, the rig the methods use, what that is): ``$NURBSCAN_BENCH_CALIB`` if set."""
     calib = os.environ.get("NURBSCAN_BENCH_CALIB")
     if calib:
         from nurbscan.camera import load_rig

@@ -42,12 +42,13 @@ import time
 
 import numpy as np
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_graycode import _coverage, with_calibration  # noqa: E402
+
 N_VIEWS = int(os.environ.get("NURBSCAN_BENCH_PEER_VIEWS", "2"))
 CAMERA = os.environ.get("NURBSCAN_BENCH_PEER_CAMERA", "1536x1152")
 ANGLES = (math.radians(45.0), math.radians(180.0), math.radians(270.0), 0.0)
 RMS_RATIO_TARGET = 1.5
-COVER_TOL = 0.5
-N_COVER = 20_000
 ERROR_SAMPLE = 200_000
 #: (name, noise scale, projector defocus scale)
 CONDITIONS = (("noise 1x", 1.0, 1.0), ("noise 0.5x", 0.5, 1.0), ("noise 2x", 2.0, 1.0),
@@ -55,20 +56,6 @@ CONDITIONS = (("noise 1x", 1.0, 1.0), ("noise 0.5x", 0.5, 1.0), ("noise 2x", 2.0
     :int(os.environ.get("NURBSCAN_BENCH_PEER_CONDITIONS", "4"))]
 GC, PS, NP, NG = "Gray code (OpenCV)", "phase shift (N=4, T=16 px)", "nurbscan points", \
     "nurbscan Gordon"
-
-
-def _coverage(truth: dict, cloud: np.ndarray, key: str, seed: int = 0) -> float:
-    """Share of random lit object pixels with a ``cloud`` point within COVER_TOL mm."""
-    from scipy.spatial import cKDTree
-
-    lit = (truth["lit"] & (truth["surface_id"] >= 0)).ravel()
-    idx = np.flatnonzero(lit)
-    if idx.size == 0 or len(cloud) == 0:
-        return 0.0
-    idx = np.random.default_rng(seed).choice(idx, min(N_COVER, idx.size), replace=False)
-    p = truth[key].reshape(-1, 3)[idx]
-    d, _ = cKDTree(cloud).query(p, k=1, distance_upper_bound=COVER_TOL)
-    return float(np.mean(np.isfinite(d)))
 
 
 def _sample(p: np.ndarray, n: int = ERROR_SAMPLE) -> np.ndarray:
@@ -81,13 +68,7 @@ def _rig():
     from nurbscan.simulate import default_rig, scale_camera
 
     w, h = (int(x) for x in CAMERA.lower().split("x"))
-    rig = scale_camera(default_rig(), w, h)
-    calib = os.environ.get("NURBSCAN_BENCH_CALIB")
-    if calib:
-        from nurbscan.camera import load_rig
-
-        return rig, load_rig(calib), f"calibrated ({calib})"
-    return rig, rig, "true rig (set NURBSCAN_BENCH_CALIB for a calibrated one)"
+    return with_calibration(scale_camera(default_rig(), w, h))
 
 
 def _row(r: dict) -> dict:
