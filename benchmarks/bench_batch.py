@@ -20,7 +20,6 @@ through ``python benchmarks/run.py batch``.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -30,8 +29,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 SCANS = 4
 VIEWS = 4
 SIZE = (1024, 768)
@@ -40,19 +37,10 @@ MODEL_SCANS, MODEL_VIEWS = 1000, 24
 
 
 def model_hash(folder) -> str:
-    """sha256 of a model folder's arrays (points, curves, surfaces, fused mesh)."""
+    """sha256 of a model folder's geometry, not its times (:meth:`Model.geometry_digest`)."""
     from nurbscan.reconstruct import load_model
 
-    m = load_model(folder)
-    h = hashlib.sha256()
-    arrays = [m.points, m.normals, m.point_view, m.edge_points, m.edge_view]
-    arrays += [s["surface"].control_points for s in m.surfaces]
-    arrays += [c["curve"].control_points for c in m.curves]
-    if m.fused is not None:
-        arrays += [m.fused.vertices, m.fused.faces, m.fused.colors]
-    for a in arrays:
-        h.update(np.ascontiguousarray(a).tobytes())
-    return h.hexdigest()
+    return load_model(folder).geometry_digest()
 
 
 def make_scans(root: Path) -> list[Path]:

@@ -8,7 +8,6 @@ edge points, every curve's and surface's control points, the fused mesh) as
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -20,7 +19,6 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 pytest.importorskip("distributed")
@@ -30,17 +28,8 @@ from nurbscan.reconstruct import load_model  # noqa: E402
 
 
 def model_hash(folder) -> str:
-    """sha256 of a model folder's arrays (not its times)."""
-    m = load_model(folder)
-    h = hashlib.sha256()
-    arrays = [m.points, m.normals, m.point_view, m.edge_points, m.edge_view]
-    arrays += [s["surface"].control_points for s in m.surfaces]
-    arrays += [c["curve"].control_points for c in m.curves]
-    if m.fused is not None:
-        arrays += [m.fused.vertices, m.fused.faces, m.fused.colors]
-    for a in arrays:
-        h.update(np.ascontiguousarray(a).tobytes())
-    return h.hexdigest()
+    """sha256 of a model folder's geometry, not its times (:meth:`Model.geometry_digest`)."""
+    return load_model(folder).geometry_digest()
 
 
 @pytest.fixture(scope="module")

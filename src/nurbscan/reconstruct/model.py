@@ -86,6 +86,20 @@ class Model:
         """Curve entries of one kind."""
         return [c for c in self.curves if c["kind"] == kind]
 
+    def geometry_digest(self) -> str:
+        """sha256 (hex) of the model's geometry, not its times: the points, normals, point
+        views, edge points and their views, every surface's and curve's control points, and
+        the fused mesh's vertices, faces and colours, in that order (bytes as stored)."""
+        h = hashlib.sha256()
+        arrays = [self.points, self.normals, self.point_view, self.edge_points, self.edge_view]
+        arrays += [s["surface"].control_points for s in self.surfaces]
+        arrays += [c["curve"].control_points for c in self.curves]
+        if self.fused is not None:
+            arrays += [self.fused.vertices, self.fused.faces, self.fused.colors]
+        for a in arrays:
+            h.update(np.ascontiguousarray(a).tobytes())
+        return h.hexdigest()
+
     # ------------------------------------------------------------------ JSON
     def to_dict(self) -> dict[str, Any]:
         """The ``model.json`` document (without the point arrays)."""
