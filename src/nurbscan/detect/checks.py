@@ -144,13 +144,9 @@ def check_labels(counts: np.ndarray, direction: np.ndarray, prep: Prepared) -> N
     family has at least ``CONFIRM_MIN_LINES`` lines of ``CONFIRM_LENGTH`` points or more and
     the other none.
 
-    What it cannot tell: a view rotated by 270 degrees decodes a few lines of the family it
-    reads backwards (16-24 of about 300 on the simulated views: 0.3-0.6 % of the labels
-    right), and a transposed one (rotated by 90 degrees and mirrored) shows a valid grid
-    whose families are swapped; with the same code in both directions its labels are
-    consistent, and one photograph cannot tell it from an upright one. A check on the share
-    of lines that consistent crossings confirm refused those too, but also the calibration
-    boards, whose squares cut the lines (0-16 % confirmed, their labels right).
+    Since the orientation is found from the windows (:mod:`~nurbscan.detect.orientation`,
+    before the decoding), a turned photograph is decoded upright and this check is the
+    fallback for what that cannot tell (too few windows agreeing in either direction).
 
     Parameters
     ----------
