@@ -302,6 +302,31 @@ def test_orientation_maps_points_back():
     assert Orientation().upright and not Orientation(flip_y=True).upright
 
 
+def test_grid_orientation_from_measured_spans():
+    """grid_orientation on spans measured on the 1280 x 960 teapot view (pitch 16): upright;
+    rotated by 180 degrees; read with the reciprocal polynomial's grid (1032, the sequence
+    reversed: its column family's agreeing spans fall outside the band counts, 510 of 1003)
+    is not taken for a turned photograph; without spans beyond the short direction's band
+    count a turned photograph's roles are unknown."""
+    from nurbscan.detect.orientation import Orientation, grid_orientation
+
+    upright = [[[2482, 1024, 0, 2568, 2482], [0, 0, 0, 2568, 0]],
+               [[1288, 0, 0, 1292, 1288], [0, 0, 0, 1292, 0]]]
+    turned = [[[0, 0, 0, 2291, 0], [2202, 847, 0, 2291, 2202]],
+              [[0, 0, 0, 1202, 0], [1200, 0, 0, 1202, 1200]]]
+    reciprocal = [[[0, 0, 0, 2568, 0], [2434, 2434, 0, 2568, 2482]],
+                  [[0, 0, 0, 1292, 0], [510, 376, 0, 1292, 1003]]]
+    assert grid_orientation(upright) == Orientation()
+    assert grid_orientation(turned) == Orientation(flip_x=True, flip_y=True)
+    assert grid_orientation(reciprocal) == Orientation()
+    swapped = np.asarray(turned)[::-1]
+    assert grid_orientation(swapped) == Orientation(transpose=True, flip_x=True, flip_y=True)
+    short = np.asarray(turned).copy()
+    short[0, 1, 1] = 0
+    got = grid_orientation(short)
+    assert (got.flip_x, got.flip_y, got.roles_known) == (True, True, False)
+
+
 # ---------------------------------------------------------------------- scan.json
 def _scan_doc(**extra) -> dict:
     return {"type": "nurbscan.scan", "version": 1, "image_size": [80, 60],
