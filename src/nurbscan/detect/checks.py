@@ -29,7 +29,10 @@ from .refine import Lines
 #: or more in one family and not one line in the other, the decoding is refused. Simulated
 #: teapot views (768 x 576, whole and random crops) rotated by 90 degrees: one family decoded,
 #: 1-2 % of the labels right; upright views, crops and calibration boards: both families.
-CONFIRM_LENGTH, CONFIRM_MIN_LINES = 20, 5
+#: Lines of 20 points or more once: bench_fuzz case 296 (a 409 x 296 crop of view 1, turned,
+#: noise and JPEG; too few windows for the orientation) decoded 20 lines of 4-19 points of
+#: one family, all wrong; 4 is the chains' least length.
+CONFIRM_LENGTH, CONFIRM_MIN_LINES = 4, 5
 
 #: ``plane_support``'s neighbours and largest distance from the plane's edge (camera px), for
 #: ``plane_radius``.
@@ -144,13 +147,9 @@ def check_labels(counts: np.ndarray, direction: np.ndarray, prep: Prepared) -> N
     family has at least ``CONFIRM_MIN_LINES`` lines of ``CONFIRM_LENGTH`` points or more and
     the other none.
 
-    What it cannot tell: a view rotated by 270 degrees decodes a few lines of the family it
-    reads backwards (16-24 of about 300 on the simulated views: 0.3-0.6 % of the labels
-    right), and a transposed one (rotated by 90 degrees and mirrored) shows a valid grid
-    whose families are swapped; with the same code in both directions its labels are
-    consistent, and one photograph cannot tell it from an upright one. A check on the share
-    of lines that consistent crossings confirm refused those too, but also the calibration
-    boards, whose squares cut the lines (0-16 % confirmed, their labels right).
+    Since the orientation is found from the windows (:mod:`~nurbscan.detect.orientation`,
+    before the decoding), a turned photograph is decoded upright and this check is the
+    fallback for what that cannot tell (too few windows agreeing in either direction).
 
     Parameters
     ----------

@@ -10,6 +10,10 @@ normalise          :func:`.prepare.prepare`                    :class:`.prepare.
 edge points        :func:`.chains.find_edges`                  :class:`.chains.Edges`
 chains             :func:`.chains.trace_chains`                :class:`.chains.Chains`
 colour reading     :func:`.crossings.read_colours`             :class:`.crossings.Reading`
+orientation        :func:`.orientation.grid_orientation`       :class:`.orientation.
+                                                               Orientation` (a turned
+                                                               photograph: detected upright,
+                                                               :func:`detect_turned`)
 decoding           :func:`.labels.decode_labels`               :class:`.labels.Labels`
 family fits        :func:`.families.family_labels`             :class:`.labels.Labels`
 refinement         :func:`.refine.select_points`,              :class:`.refine.Lines`
@@ -98,6 +102,7 @@ from .labels import (  # noqa: F401
 from .lines import smooth_chains
 from .normalize import noise_level  # noqa: F401
 from .options import DetectOptions
+from .orientation import Orientation, grid_orientation, to_photograph
 from .prepare import (  # noqa: F401
     FINE_BAND_PX,
     NoGrid,
@@ -156,10 +161,12 @@ def detect_grid(image, pattern, white=None, options: DetectOptions = _DEFAULT, *
     -----
     The stages (module notes): normalise the photograph and measure its scale; find the
     edge points; trace them into chains; read the band crossings' colours and the colour
-    windows' votes; decode and propagate the labels; label more from the family fits (and
-    the rig); select and re-measure the labelled lines' points; intersect the lines; check
-    the lines against their rows and intersections; smooth the chains, extend them by the
-    corner points and return the result.
+    windows' votes; find the grid's orientation from the windows (a photograph rotated by
+    90, 180 or 270 degrees, mirrored or transposed is detected upright and the result mapped
+    back, :func:`detect_turned`); decode and propagate the labels; label more from the
+    family fits (and the rig); select and re-measure the labelled lines' points; intersect
+    the lines; check the lines against their rows and intersections; smooth the chains,
+    extend them by the corner points and return the result.
     """
     if legacy:
         _warnings.warn("detect_grid: keyword options are deprecated, pass "
@@ -175,6 +182,15 @@ def detect_grid(image, pattern, white=None, options: DetectOptions = _DEFAULT, *
         edges = clock("edges", find_edges(prep, o.edges))
         chains = clock("chains", trace_chains(edges, prep, o.chains.min_length))
         reading = clock("reading", read_colours(chains, prep, pattern, o.reading))
+        if o.decoding.find_orientation:
+            turn = grid_orientation(reading.spans)
+            if not (turn.upright or turn.roles_known):
+                raise NoGrid("image: grid orientation ambiguous: the photograph is turned "
+                             f"({turn.describe()}, or transposed so), and its bands do not "
+                             "tell which family is the vertical bands'", prep.size)
+            if not turn.upright:
+                return detect_turned(image, white, pattern, o, turn, prep.size, epipolar,
+                                     timings)
         labels = clock("decoding", decode_labels(chains, reading, prep, pattern, o.decoding))
         labels = clock("families", family_labels(labels, chains, reading, prep, pattern,
                                                  o.fits, o.decoding.min_votes,
@@ -192,6 +208,30 @@ def detect_grid(image, pattern, white=None, options: DetectOptions = _DEFAULT, *
     except NoGrid as e:
         _warnings.warn(e.reason, UserWarning, stacklevel=2)
         return DetectionResult.empty(e.size, (e.reason,))
+
+
+def detect_turned(image, white, pattern, options: DetectOptions, turn: Orientation,
+                  size: tuple[int, int], epipolar=None,
+                  timings: dict | None = None) -> DetectionResult:
+    """:func:`detect_grid` of the upright image of a photograph of ``size`` (width, height)
+    turned by ``turn`` (:func:`~nurbscan.detect.orientation.grid_orientation`), mapped back
+    to the photograph (:func:`~nurbscan.detect.orientation.to_photograph`); the rig's
+    ``epipolar`` prediction is asked at the photograph's pixels."""
+    upright_size = size[::-1] if turn.transpose else size
+    turned = epipolar
+    if epipolar is not None:
+        def turned(pixels, direction, coord):
+            pix = np.asarray(pixels, np.float64)
+            x, y = turn.to_photograph(pix[:, 0], pix[:, 1], upright_size)
+            return epipolar(np.c_[x, y], direction, coord)
+    options = options.replace(find_orientation=False)
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore", UserWarning)  # the reason is in the result
+        result = detect_grid(turn.apply(image), pattern, turn.apply(white), options,
+                             epipolar=turned, timings=timings)
+    if result.nlines == 0 and result.warnings:
+        _warnings.warn(result.warnings[0], UserWarning, stacklevel=3)
+    return to_photograph(result, turn, size)
 
 
 class _Clock:

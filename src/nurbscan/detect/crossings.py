@@ -27,6 +27,7 @@ from .decode import (
     oblique_runs,
     window_votes,
 )
+from .orientation import window_spans
 from .prepare import Prepared
 
 #: Relative tolerance of a band's width against the local pitch times band / pitch for a
@@ -65,6 +66,9 @@ class Reading:
     grid_rows : tuple
         With ``read_along`` "grid", the grid runs in
         :func:`~nurbscan.detect.labels.row_order`'s form (empty otherwise).
+    spans : (2, 2, 3) int
+        Per family (vertical, horizontal), the spans of agreeing windows read forwards and
+        backwards (:func:`~nurbscan.detect.orientation.window_spans`), for the orientation.
     """
 
     props: tuple
@@ -76,6 +80,7 @@ class Reading:
     vote_pos: np.ndarray
     pitch_px: float
     grid_rows: tuple
+    spans: np.ndarray | None = None
 
 
 def _runs(chains: Chains, prep: Prepared, pattern, along_grid: bool, strict: np.ndarray):
@@ -150,7 +155,7 @@ def read_colours(chains: Chains, prep: Prepared, pattern, options) -> Reading:
     parts, grid_rows = _runs(chains, prep, pattern, along_grid, strict)
     allsamp = np.concatenate([q[5][q[6]] for q in parts]) if parts else np.zeros((0, 3))
     _, centres = classify_colours(allsamp, pattern.rgb)
-    vp, vi, vj, spacing, props = [], [], [], [], []
+    vp, vi, vj, spacing, props, spans = [], [], [], [], [], []
     paired = np.zeros(len(px), bool)
     partner = np.full(len(px), -1, np.int64)  # the other edge point of a point's crossing
     for sel, across, run, o, st, samples, clean, name, wscale in parts:
@@ -164,6 +169,7 @@ def read_colours(chains: Chains, prep: Prepared, pattern, options) -> Reading:
         cr, cf = lcode[lr], lcode[lf]
         ccode = np.where(cr < 0, cf, np.where((cf < 0) | (cf == cr), cr, -1))
         p_, i_, j_ = window_votes(o, st, run, across, ccode, pattern, name)
+        spans.append(window_spans(o, st, run, ccode, pattern))
         a = across[o]
         props.append((lr, lf, st, run[o[st]], a[st], a[st + 1], lcode, name))
         # a band narrower than min_width sigma: its two edges' blurred profiles overlap and
@@ -186,7 +192,8 @@ def read_colours(chains: Chains, prep: Prepared, pattern, options) -> Reading:
                    lcode=np.max(np.stack([q[6] for q in props]), axis=0),
                    vote_point=np.concatenate(vp), vote_band=np.concatenate(vi),
                    vote_pos=np.concatenate(vj),
-                   pitch_px=float(np.median(sp)) if len(sp) else 20.0, grid_rows=grid_rows)
+                   pitch_px=float(np.median(sp)) if len(sp) else 20.0, grid_rows=grid_rows,
+                   spans=np.stack(spans))
 
 
 def clean_crossings(sig: np.ndarray, a: np.ndarray, r: np.ndarray, st: np.ndarray, d: int,

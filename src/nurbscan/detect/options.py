@@ -287,12 +287,18 @@ class DecodeOptions(_Group):
     collinear_rounds : int
         Further rounds of :func:`propagate_collinear` alone (labels carried along the pieces of
         one edge cut by crossing bands) after the propagation above.
+    find_orientation : bool
+        Find the grid's orientation from the colour windows
+        (:func:`~nurbscan.detect.orientation.grid_orientation`) and, when the photograph is
+        rotated by 90, 180 or 270 degrees, mirrored or transposed, detect its upright image
+        and map the result back (a warning says so); False reads it as upright.
     """
 
     min_votes: int = 3
     min_agreement: float = 0.9
     pool_gap: float = 2.0
     collinear_rounds: int = 5
+    find_orientation: bool = True
 
 
 @dataclass(frozen=True)
