@@ -35,13 +35,14 @@ it). A case passes when:
 * the exit status is 2;
 * stderr holds no ``Traceback`` and, besides progress, usage and warning lines, exactly one
   line, ``nurbscan COMMAND: error: ...``, which names the damaged input (its file name, or
-  the option);
+  the option: :func:`names`);
 * the case's folder (inputs and outputs) is unchanged: the same names, sizes and
   modification times before and after (no partial output, no leftover temporaries or locks).
 
 ``bench()`` counts per class and per command: cases, passed, tracebacks, hangs, wrong exit,
 bad message, partial outputs; and lists the failures (``$NURBSCAN_BENCH_BADINPUT_FAILS``
 of them, default 60). Targets: 0 tracebacks, 0 hangs, 0 partial outputs, 0 failures.
+``$NURBSCAN_BENCH_BADINPUT_DUMP``: a file to append each case's result to (JSON lines).
 ``$NURBSCAN_BENCH_BADINPUT`` (a comma-separated list of commands) runs only those;
 ``$NURBSCAN_BENCH_BADINPUT_FIXTURES`` keeps the fixtures in that folder and reuses them.
 """
@@ -681,7 +682,7 @@ def cases(full: bool = True) -> list[Case]:
     out += _output_cases("report", rep, "out/report.html", rep_in, ("out/report.html",),
                          True)
     # merge -----------------------------------------------------------------------------
-    mer_in = ("model", "model2")
+    mer_in = ("model", "model2", "scan")
     mer = ["merge", "in/model", "in/model2", "-o", "out/merged", "-q", "--trials", "1"]
     out += _model_cases("merge", mer, mer_in, "in/model2", False)
     out += _file_cases("merge", mer, mer_in, "in/model2/fused.ply", "ply",
@@ -811,15 +812,39 @@ def error_lines(stderr: str) -> list[str]:
     return keep
 
 
+def names(line: str, case: Case) -> bool:
+    """Whether an error line names the case's input: its file name, or an option (``--max-
+    points``) by its flag or its name (``max-points``, ``max points``, ``max_points``; a
+    library's message names the value: ``pattern width=0``)."""
+    e = case.expect
+    if not e.startswith("--"):
+        return e in line
+    n = e.lstrip("-")
+    low = line.lower()
+    return any(t in low for t in (e, n, n.replace("-", " "), n.replace("-", "_")))
+
+
 def run_case(case: Case, fixtures: Path, work: Path, root: bool) -> dict:
     """Run one case in ``work``; the verdict and what was wrong."""
     case_dir = work
-    (case_dir / "out").mkdir(parents=True)
-    _link_inputs(case_dir, fixtures, case.inputs)
-    _old_outputs(case_dir, fixtures, case.old_outputs)
-    if case.setup is not None:
-        case.setup(case_dir)
+    try:
+        (case_dir / "out").mkdir(parents=True)
+        _link_inputs(case_dir, fixtures, case.inputs)
+        _old_outputs(case_dir, fixtures, case.old_outputs)
+        if case.setup is not None:
+            case.setup(case_dir)
+    except Exception as exc:  # a defect of the case, not of the command: reported apart
+        return {"id": case.id, "command": case.command, "cls": case.cls,
+                "setup_error": f"{type(exc).__name__}: {exc}"[:300]}
     undo = _lock(case_dir / "out", root) if case.unwritable else None
+    try:
+        return _run(case, case_dir, undo)
+    finally:
+        if undo is not None:
+            undo()
+
+
+def _run(case: Case, case_dir: Path, undo: Callable[[], None] | None) -> dict:
     before = snapshot(case_dir)
     t0 = time.monotonic()
     p = subprocess.Popen([sys.executable, "-m", "nurbscan", *case.argv], cwd=case_dir,
@@ -848,7 +873,7 @@ def run_case(case: Case, fixtures: Path, work: Path, root: bool) -> dict:
     if not hang and p.returncode != 2:
         problems.append(f"exit {p.returncode}")
     ok_msg = (len(lines) == 1 and lines[0].startswith(f"nurbscan {case.command}")
-              and "error:" in lines[0] and case.expect in lines[0])
+              and "error:" in lines[0] and names(lines[0], case))
     if not traceback and not hang and not ok_msg:
         problems.append(f"message {lines[:3]!r}"[:300])
     changed = sorted(set(before) ^ set(after)) + sorted(
@@ -874,10 +899,15 @@ def run_cases(selected: list[Case], fixtures: Path, work: Path, workers: int = 2
               ) -> list[dict]:
     """Run ``selected`` cases, ``workers`` at a time, each in ``work/NNN``."""
     root = _is_root()
+    dump = os.environ.get("NURBSCAN_BENCH_BADINPUT_DUMP")
 
     def one(item):
         k, c = item
-        return run_case(c, fixtures, work / f"{k:04d}", root)
+        r = run_case(c, fixtures, work / f"{k:04d}", root)
+        if dump:  # one JSON line per case as it ends (kept if the run is stopped)
+            with open(dump, "a") as f:
+                f.write(json.dumps(r) + "\n")
+        return r
 
     with ThreadPoolExecutor(workers) as pool:
         return list(pool.map(one, enumerate(selected)))
@@ -893,6 +923,8 @@ def summarise(results: list[dict], n_fail: int = 60) -> dict:
                 "bad_message": sum(r["bad_message"] for r in rs),
                 "partial_outputs": sum(r["partial"] for r in rs)}
 
+    setup = [r for r in results if "setup_error" in r]
+    results = [r for r in results if "setup_error" not in r]
     fit = [r for r in results if r["fits"]]
     results = [r for r in results if not r["fits"]]
     total = counts(results)
@@ -907,6 +939,7 @@ def summarise(results: list[dict], n_fail: int = 60) -> dict:
         "per command": {m: counts([r for r in results if r["command"] == m])
                         for m in dict.fromkeys(r["command"] for r in results)},
         "disk-full cases left out (the outputs fit under the limit: exit 0)": len(fit),
+        "cases whose set-up failed (a defect of the suite)": len(setup),
         "slowest case (s)": round(max((r["wall_s"] for r in results), default=0.0), 1),
         "failed cases": {r["id"]: "; ".join(r["problems"]) for r in fails[:n_fail]},
     }
@@ -930,9 +963,6 @@ def bench() -> dict:
         out = summarise(results, int(os.environ.get("NURBSCAN_BENCH_BADINPUT_FAILS", "60")))
         out["fixtures_s"] = round(t_fix, 1)
         out["cases_s"] = round(time.monotonic() - t0, 1)
-        dump = os.environ.get("NURBSCAN_BENCH_BADINPUT_DUMP")
-        if dump:
-            Path(dump).write_text(json.dumps(results, indent=1))
     return out
 
 
