@@ -217,8 +217,11 @@ def folder_lock(path: str | os.PathLike) -> Iterator[Path]:
     else:  # pragma: no cover - a lock file replaced 100 times in a row
         raise NurbscanError(f"{path}: cannot take the lock {lock}")
     try:
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
+        try:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
+        except OSError as exc:  # a full disk: not even the lock's pid fits
+            raise _cannot_write(path, exc) from None
         yield lock
     finally:
         with contextlib.suppress(OSError):

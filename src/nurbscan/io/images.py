@@ -14,6 +14,7 @@ decoding it (a 32000 x 32000 PNG would take 9 GB before failing).
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
@@ -52,7 +53,9 @@ def read_image(path: str | os.PathLike, as_float: bool = True) -> np.ndarray:
     if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
         raise NurbscanError(f"{path}: {size[0]} x {size[1]} px, more than the "
                             f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpx an image may have here")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
+    with _codec_messages_silenced():  # libpng's "Read Error": the one line below says it
+        img = cv2.imread(str(path),
+                         cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
     if img is None or img.size == 0:
         raise NurbscanError(f"{path}: not a readable image (corrupt or unsupported format)")
     if img.ndim == 2:
@@ -72,6 +75,29 @@ def read_image(path: str | os.PathLike, as_float: bool = True) -> np.ndarray:
     if np.issubdtype(img.dtype, np.floating):
         return img.astype(np.float32)
     raise NurbscanError(f"{path}: unsupported sample type {img.dtype}")
+
+
+@contextlib.contextmanager
+def _codec_messages_silenced():
+    """Send file descriptor 2 to ``/dev/null`` while OpenCV decodes: libpng and libtiff print
+    their own messages on a corrupt file (``libpng error: Read Error``) before OpenCV returns
+    None, which :func:`read_image` reports as one line naming the file."""
+    import sys
+
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        null = os.open(os.devnull, os.O_WRONLY)
+    except OSError:
+        yield
+        return
+    try:
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(null)
 
 
 def write_image(path: str | os.PathLike, image: np.ndarray) -> Path:
