@@ -47,8 +47,8 @@ of them, default 60). Targets: 0 tracebacks, 0 hangs, 0 partial outputs, 0 failu
 ``$NURBSCAN_BENCH_BADINPUT_FIXTURES`` keeps the fixtures in that folder and reuses them.
 """
 
-from __future__ import annotations
-
+# no ``from __future__ import annotations``: benchmarks/run.py loads this file without
+# registering it in sys.modules, where dataclasses would look string annotations up
 import contextlib
 import json
 import os
