@@ -56,6 +56,12 @@ def run(args: argparse.Namespace) -> int:
         raise NurbscanError(f"{args.pattern}: --calib (epipolar decoding) is only for nurbscan's "
                             "own band grids, not for a pattern of thin lines")
     image = read_image(args.image, as_float=False)
+    # an edge filter wider than the image finds nothing, and its kernel (8 sigma) would not
+    # fit in memory (--sigma 1e9: 59.6 GiB)
+    max_sigma = max(image.shape[:2]) / 8.0
+    if args.sigma is not None and args.sigma > max_sigma:
+        raise NurbscanError(f"--sigma {args.sigma:g}: wider than {args.image} allows (at most "
+                            f"{max_sigma:g} px, an eighth of its larger side)")
     epipolar = None
     if args.calib:
         from functools import partial
