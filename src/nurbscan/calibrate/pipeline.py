@@ -496,7 +496,9 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
             raise NurbscanError(f"{doc['_path']}: calibration.poses[{q.index}]: missing 'grid'")
     poses = [q for q in scan.poses if q.index not in set(exclude)]
     if len(poses) < MIN_VIEWS:
-        raise NurbscanError(f"{doc['_path']}: {len(poses)} calibration poses; at least "
+        left = (f" ({len(scan.poses) - len(poses)} of {len(scan.poses)} left out by exclude)"
+                if len(poses) < len(scan.poses) else "")
+        raise NurbscanError(f"{doc['_path']}: {len(poses)} calibration poses{left}; at least "
                             f"{MIN_VIEWS} are needed")
     board = target.corners()
     warn_list: list[str] = []
