@@ -487,6 +487,34 @@ def test_reconstruct_with_no_grid_in_any_view_is_refused(small_scan, tmp_path, c
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scan"]
 
 
+def test_reconstruct_with_no_grid_in_some_views_is_a_partial_result(small_scan, tmp_path,
+                                                                      capsys):
+    """View 1 blank: the model of view 0 is written, a warning names view 1, exit status 3
+    (reconstruct --help); the model is the one of view 0 alone."""
+    import cv2
+
+    scan = tmp_path / "scan"
+    shutil.copytree(small_scan, scan, ignore=shutil.ignore_patterns("truth"))
+    cv2.imwrite(str(scan / "views" / "view_01_grid.png"), np.full((576, 768, 3), 40, np.uint8))
+    calib = str(small_scan / "truth" / "rig.json")
+    out = tmp_path / "m"
+    assert main(["reconstruct", str(scan), "--calib", calib, "-o", str(out), "-q",
+                 "--workers", "1", "--no-fuse", "--no-register"]) == 3
+    err = [e for e in capsys.readouterr().err.splitlines() if "no grid line decoded" in e]
+    assert len(err) == 1 and "view(s) 1 of" in err[0] and "exit status 3" in err[0], err
+    m = load_model(out)
+    assert [v["index"] for v in m.views if v["lines"]] == [0]
+    assert len(m.points) > 100 and set(np.unique(m.point_view)) == {0}
+    one = tmp_path / "m0"
+    assert main(["reconstruct", str(scan), "--calib", calib, "-o", str(one), "-q",
+                 "--workers", "1", "--no-fuse", "--no-register", "--views", "0"]) == 0
+    assert np.array_equal(load_model(one).points, m.points)
+    from nurbscan.cli import build_parser
+
+    helptext = build_parser()._subparsers._group_actions[0].choices["reconstruct"].format_help()
+    assert "3 partial" in " ".join(helptext.split())
+
+
 def test_export_name_and_format_disagree_and_simulate_zero_size(tmp_path, capsys):
     out = tmp_path / "m"
     _model().save(out)

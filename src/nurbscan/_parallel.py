@@ -51,6 +51,16 @@ def _pool(workers: int, initializer: Callable[..., None] | None = None, initargs
                                initargs=(os.getpid(), initializer, initargs))
 
 
+def _pool_or_none(workers: int, initializer: Callable[..., None] | None = None,
+                  initargs: tuple = ()) -> ProcessPoolExecutor | None:
+    """:func:`_pool`, or None when the system cannot give one (no room for its semaphores in
+    ``/dev/shm``, a file-size limit, no processes left): the jobs then run here."""
+    try:
+        return _pool(workers, initializer, initargs)
+    except OSError:
+        return None
+
+
 def worker_count(workers: int | None) -> int:
     """Processes to use: ``workers`` (0 or None: one per CPU), at most one per CPU, at least 1."""
     cpus = os.cpu_count() or 1
@@ -70,7 +80,8 @@ def process_map(fn: Callable[[Any], Any], items: Sequence[Any] | Iterable[Any],
     items : sequence
         Its arguments, one job each (pickled to the workers).
     workers : int, optional
-        Processes (see :func:`worker_count`); 1 runs every job here, in order.
+        Processes (see :func:`worker_count`); 1 runs every job here, in order (so does a
+        system that cannot start a pool, :func:`_pool_or_none`).
     done : callable, optional
         ``done(index, result)``, called in this process as each job finishes (progress).
     initializer, initargs : optional
@@ -84,7 +95,8 @@ def process_map(fn: Callable[[Any], Any], items: Sequence[Any] | Iterable[Any],
     items = list(items)
     n = min(worker_count(workers), max(len(items), 1))
     results: list[Any] = [None] * len(items)
-    if n == 1:
+    pool = _pool_or_none(n, initializer, initargs) if n > 1 else None
+    if pool is None:
         if initializer is not None:
             initializer(*initargs)
         for i, item in enumerate(items):
@@ -92,7 +104,7 @@ def process_map(fn: Callable[[Any], Any], items: Sequence[Any] | Iterable[Any],
             if done is not None:
                 done(i, results[i])
         return results
-    with _pool(n, initializer, initargs) as pool:
+    with pool:
         futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
         for f in as_completed(futures):
             i = futures[f]
@@ -109,10 +121,10 @@ def in_background(fn: Callable[..., Any], *args: Any, parallel: bool = True
     With ``parallel`` false (or one CPU) ``fn`` runs here, at once, and the returned function
     gives its result. ``fn`` and ``args`` are pickled, as for :func:`process_map`.
     """
-    if not parallel or worker_count(0) < 2:
+    pool = _pool_or_none(1) if parallel and worker_count(0) >= 2 else None
+    if pool is None:
         result = fn(*args)
         return lambda: result
-    pool = _pool(1)
     future = pool.submit(fn, *args)
 
     def wait() -> Any:

@@ -35,17 +35,19 @@ from .turntable import fit_turntable
 def write_outputs(result: CalibrationResult, output: Path) -> list[Path]:
     """Write the rig (``output``), ``<stem>_residuals.json`` and ``<stem>_residuals.png``.
 
-    All files are written atomically. Returns their paths.
+    The three are written together atomically (:func:`nurbscan.io.atomic_paths`): a failure
+    leaves all three as they were. Returns their paths.
     """
-    from ..io import write_image, write_json
+    from ..io import atomic_paths, write_image, write_json
 
     output = Path(output)
-    write_json(output, result.rig_dict())
     js = output.with_name(output.stem + "_residuals.json")
-    write_json(js, result.residuals_dict())
     png = output.with_name(output.stem + "_residuals.png")
     cam = result.rig.camera
-    write_image(png, residual_image(result, (int(cam.width), int(cam.height))))
+    with atomic_paths(output, js, png) as (t_rig, t_js, t_png):
+        write_json(t_rig, result.rig_dict())
+        write_json(t_js, result.residuals_dict())
+        write_image(t_png, residual_image(result, (int(cam.width), int(cam.height))))
     return [output, js, png]
 
 

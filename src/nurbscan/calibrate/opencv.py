@@ -276,6 +276,10 @@ def read_opencv(path: str | os.PathLike, image_size: tuple[int, int] | None = No
         prj_pitch = _pitch(projector_pitch, mat(("prjPixelPitch",), (2,), False))
         tp = mat(("turntablePoint",), (3,), False)
         td = mat(("turntableDirection",), (3,), False)
+    except cv2.error as exc:  # a node of the wrong kind (a string where a matrix is)
+        msg = (exc.err or str(exc)).strip().splitlines()[0]
+        raise NurbscanError(f"{src}: not an OpenCV calibration of the expected form "
+                            f"({msg})") from None
     finally:
         fs.release()
     D1 = np.zeros(5) if D1 is None else D1.ravel()

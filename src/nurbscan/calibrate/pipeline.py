@@ -163,7 +163,11 @@ def read_scan_json(calib_dir: Path) -> dict:
     """The scan.json beside (or inside) the calibration folder."""
     for cand in (calib_dir.parent / "scan.json", calib_dir / "scan.json"):
         if cand.is_file():
-            return read_json(cand) | {"_path": str(cand), "_root": str(cand.parent)}
+            doc = read_json(cand)
+            if not isinstance(doc, dict):
+                raise NurbscanError(f"{cand}: not a nurbscan scan (a JSON object with "
+                                    "\"type\": \"nurbscan.scan\"; docs/scan-format.md)")
+            return doc | {"_path": str(cand), "_root": str(cand.parent)}
     raise NurbscanError(f"{calib_dir}: no scan.json beside the calibration folder (looked in "
                         f"{calib_dir.parent} and {calib_dir})")
 
@@ -409,6 +413,10 @@ def _read_pose(job) -> tuple[tuple[int, int], np.ndarray | None, Any, np.ndarray
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         grid = read_image(gpath, as_float=False)
+        if grid.shape[:2] != white.shape[:2]:
+            raise NurbscanError(f"{wpath}: size {white.shape[1]} x {white.shape[0]} does not "
+                                f"match the grid image {Path(gpath).name} ({grid.shape[1]} x "
+                                f"{grid.shape[0]})")
         if _is_line_pattern(pattern):
             from ..detect import detect_lines
 
@@ -488,7 +496,9 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
             raise NurbscanError(f"{doc['_path']}: calibration.poses[{q.index}]: missing 'grid'")
     poses = [q for q in scan.poses if q.index not in set(exclude)]
     if len(poses) < MIN_VIEWS:
-        raise NurbscanError(f"{doc['_path']}: {len(poses)} calibration poses; at least "
+        left = (f" ({len(scan.poses) - len(poses)} of {len(scan.poses)} left out by exclude)"
+                if len(poses) < len(scan.poses) else "")
+        raise NurbscanError(f"{doc['_path']}: {len(poses)} calibration poses{left}; at least "
                             f"{MIN_VIEWS} are needed")
     board = target.corners()
     warn_list: list[str] = []

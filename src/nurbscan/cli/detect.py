@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
         draw_overlay,
     )
     from ..errors import NurbscanError
-    from ..io import chroma_subsampled, read_image, write_image
+    from ..io import atomic_paths, chroma_subsampled, read_image, write_image
     from ..pattern import LinePattern, load_pattern
 
     pattern = load_pattern(args.pattern)
@@ -56,6 +56,12 @@ def run(args: argparse.Namespace) -> int:
         raise NurbscanError(f"{args.pattern}: --calib (epipolar decoding) is only for nurbscan's "
                             "own band grids, not for a pattern of thin lines")
     image = read_image(args.image, as_float=False)
+    # an edge filter wider than the image finds nothing, and its kernel (8 sigma) would not
+    # fit in memory (--sigma 1e9: 59.6 GiB)
+    max_sigma = max(image.shape[:2]) / 8.0
+    if args.sigma is not None and args.sigma > max_sigma:
+        raise NurbscanError(f"--sigma {args.sigma:g}: wider than {args.image} allows (at most "
+                            f"{max_sigma:g} px, an eighth of its larger side)")
     epipolar = None
     if args.calib:
         from functools import partial
@@ -89,10 +95,12 @@ def run(args: argparse.Namespace) -> int:
     if result.nlines == 0:
         raise NurbscanError(f"{args.image}: " + (result.warnings[0] if result.warnings
                                                   else "no grid line decoded"))
-    result.save(args.output)
-    if args.overlay:
-        draw = draw_line_overlay if thin else draw_overlay
-        write_image(args.overlay, draw(image, result, pattern))
+    outputs = (args.output,) + ((args.overlay,) if args.overlay else ())
+    with atomic_paths(*outputs) as tmps:  # the lines and their overlay, both or neither
+        result.save(tmps[0])
+        if args.overlay:
+            draw = draw_line_overlay if thin else draw_overlay
+            write_image(tmps[1], draw(image, result, pattern))
     nv = int((result.direction == 0).sum())
     kind = "centre" if thin else "edge"
     print(f"{args.output}: {nv} vertical and {result.nlines - nv} horizontal {kind} lines, "

@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     """Evaluate ``args.model`` against ``args.truth``; print and write the table."""
     from ..errors import NurbscanError
     from ..evaluate import evaluate_model, format_table
-    from ..io import write_json, write_text
+    from ..io import atomic_paths, write_json, write_text
     from ..reconstruct import load_model
 
     if not args.cover_tol > 0:
@@ -48,9 +48,10 @@ def run(args: argparse.Namespace) -> int:
     model = load_model(args.model)
     ev = evaluate_model(model, args.truth, cover_tol=args.cover_tol, workers=2, progress=say)
     out = args.output or (args.model / "evaluation.json")
-    write_json(out, ev)
     md = format_table(ev)
-    write_text(out.with_suffix(".md"), md)
+    with atomic_paths(out, out.with_suffix(".md")) as (t_json, t_md):  # both or neither
+        write_json(t_json, ev)
+        write_text(t_md, md)
     print(md, end="")
     print(f"wrote {out} and {out.with_suffix('.md')}")
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -43,6 +44,10 @@ def register(sub) -> None:
                    help="mesh formats: triangle budget of the fused mesh (300000)")
     p.add_argument("--per-span", type=int, default=4,
                    help="mesh formats with --patches: grid intervals per knot span (4)")
+    p.add_argument("--memory-budget", type=float, default=8.0, metavar="GIB",
+                   help="mesh formats with --patches: refuse a tessellation estimated to need "
+                        "more memory than this, GiB (default 8; the estimate, from the "
+                        "patches' knot spans and --per-span, is in the message)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 
@@ -50,7 +55,7 @@ def register(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     """Export ``args.model`` to ``args.output``."""
     from ..errors import NurbscanError
-    from ..export import ALL_KINDS, export_model
+    from ..export import ALL_KINDS, MESH_FORMATS, export_model, load_model
 
     fmt = args.format or args.output.suffix.lstrip(".").lower()
     fmt = {"stp": "step", "iges": "igs"}.get(fmt, fmt)
@@ -68,6 +73,17 @@ def run(args: argparse.Namespace) -> int:
         raise NurbscanError(f"--per-span {args.per_span}: must be at least 1")
     if args.max_triangles < 100:
         raise NurbscanError(f"--max-triangles {args.max_triangles}: must be at least 100")
+    if not (math.isfinite(args.memory_budget) and args.memory_budget > 0):
+        raise NurbscanError(f"--memory-budget {args.memory_budget}: must be a positive number "
+                            "of GiB")
+    budget = args.memory_budget * 2**30
+    model = load_model(args.model)
+    if args.patches and fmt in MESH_FORMATS and not args.points:
+        from ..export.mesh import _patches, check_memory
+
+        # before anything is allocated, named by the option (--per-span 2000 took 21 GB)
+        check_memory([e["surface"] for e in _patches(model)], args.per_span, budget,
+                     what="--per-span")
     kinds = ALL_KINDS if args.kinds == "all" else tuple(
         k.strip() for k in args.kinds.split(",") if k.strip())
     t0 = time.perf_counter()
@@ -76,8 +92,9 @@ def run(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
-    out = export_model(args.model, args.output, fmt, kinds=kinds, colour=not args.no_colour,
+    out = export_model(model, args.output, fmt, kinds=kinds, colour=not args.no_colour,
                        per_span=args.per_span, points=args.points, patches=args.patches,
-                       max_triangles=args.max_triangles, progress=say)
+                       max_triangles=args.max_triangles, progress=say,
+                       memory_budget=budget)
     print(f"wrote {out} ({fmt}, {out.stat().st_size} bytes)")
     return 0

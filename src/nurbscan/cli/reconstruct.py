@@ -8,6 +8,9 @@ import time
 import warnings
 from pathlib import Path
 
+#: Exit status of a model written without some of its views (no grid line decoded in them).
+PARTIAL = 3
+
 
 def register(sub) -> None:
     """Add the ``reconstruct`` sub-command."""
@@ -21,7 +24,10 @@ def register(sub) -> None:
             "triangle mesh (a rig whose turntable is not calibrated: one view, in the rig "
             "frame, not fused) and write the model folder (model.json, points.npz, "
             "model.png, fused.ply, overlays/view_KK_overlay.png with the detected lines of "
-            "each view; docs/model-format.md). Never reads truth/."))
+            "each view; docs/model-format.md). Never reads truth/. Exit status: 0 every view "
+            "decoded; 2 bad input, nothing written (also when no view shows a grid); "
+            f"{PARTIAL} partial result: the model is written without the views in which no "
+            "grid line was decoded, named in a warning on stderr."))
     p.add_argument("scan", type=Path, help="scan folder (with scan.json)")
     p.add_argument("--calib", type=Path, required=True,
                    help="calibrated rig (calib.json from 'nurbscan calibrate')")
@@ -97,10 +103,17 @@ def run(args: argparse.Namespace) -> int:
                 print(f"nurbscan reconstruct: warning: {w}", file=sys.stderr, flush=True)
         model.meta["calibration"] = str(args.calib)
         model.write_files(tmp)
+    blind = [v for v in model.views if not v.get("lines")]
+    if blind:
+        names = ", ".join(str(v["index"]) for v in blind)
+        print(f"nurbscan reconstruct: warning: no grid line decoded in view(s) {names} of "
+              f"{args.scan / 'scan.json'}; the model holds the other "
+              f"{len(model.views) - len(blind)} view(s) (exit status {PARTIAL})",
+              file=sys.stderr, flush=True)
     path = Path(args.output) / "model.json"
     n = {k: v for k, v in model.to_dict()["counts"].items()}
     print(f"wrote {path}: {n['gordon']} Gordon patches, "
           f"{n['horizontal_line'] + n['vertical_line']} curves, {len(model.points)} points"
           + ("" if model.fused is None else
              f", fused mesh of {len(model.fused.faces)} triangles (fused.ply)"))
-    return 0
+    return PARTIAL if blind else 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import warnings
 from pathlib import Path
 
@@ -56,6 +57,16 @@ def run(args: argparse.Namespace) -> int:
     from ..calibrate.opencv import read_opencv, write_opencv
     from ..camera import load_rig
 
+    for name in ("camera_pitch", "projector_pitch"):
+        v = getattr(args, name)
+        if v is not None and not (math.isfinite(v) and v > 0):  # NaN and inf too
+            raise NurbscanError(f"--{name.replace('_', '-')} {v}: must be a positive number "
+                                "of mm")
+    for name in ("image_size", "projector_size"):
+        v = getattr(args, name)
+        if v is not None and min(v) < 1:
+            raise NurbscanError(f"--{name.replace('_', '-')} {v[0]} {v[1]}: must be positive "
+                                "px")
     src, dst = args.input.suffix.lower(), args.output.suffix.lower()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the figures are printed below

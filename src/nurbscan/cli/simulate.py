@@ -7,6 +7,14 @@ import sys
 
 from ..errors import NurbscanError
 
+#: What a simulated scan folder holds: an existing folder with only these is replaced.
+SCAN_FILES = frozenset({"scan.json", "pattern.png", "pattern.json", "views", "calibration",
+                        "truth"})
+#: Largest camera side, px (above the largest sensors: 150 Mpx is about 14200 x 10650).
+MAX_SIDE = 20_000
+#: Most views (a tenth of a degree apart).
+MAX_VIEWS = 3600
+
 
 def register(sub) -> argparse.ArgumentParser:
     """Add the ``simulate`` sub-command."""
@@ -52,6 +60,7 @@ def register(sub) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Render the scan; return 0."""
+    from ..io import atomic_folder
     from ..simulate.render import RenderSettings
     from ..simulate.rig import default_rig, scale_camera
     from ..simulate.scan import simulate_scan
@@ -63,10 +72,10 @@ def run(args: argparse.Namespace) -> int:
         raise NurbscanError(f"--seed {args.seed}: must be >= 0")
     for name in ("width", "height"):
         v = getattr(args, name)
-        if v is not None and v < 16:
-            raise NurbscanError(f"--{name} {v}: must be at least 16 px")
-    if args.views < 1:
-        raise NurbscanError(f"--views {args.views}: must be at least 1")
+        if v is not None and not 16 <= v <= MAX_SIDE:
+            raise NurbscanError(f"--{name} {v}: must be 16 to {MAX_SIDE} px")
+    if not 1 <= args.views <= MAX_VIEWS:
+        raise NurbscanError(f"--views {args.views}: must be 1 to {MAX_VIEWS}")
     if args.workers < 0:
         raise NurbscanError(f"--workers {args.workers}: must be >= 0")
     if args.rig:
@@ -97,7 +106,9 @@ def run(args: argparse.Namespace) -> int:
     pose = "" if args.pose is None else f" ({args.pose})"
     progress(f"rendering {args.scene}{pose} at {rig.camera.width} x {rig.camera.height} px, "
              f"{args.views} views, into {args.output}")
-    simulate_scan(scene, args.output, views=args.views, rig=rig, settings=settings,
-                  seed=args.seed, progress=progress, calibration=not args.no_calibration,
-                  workers=args.workers)
+    # written whole under a temporary name (a failed run leaves no half scan), under its lock
+    with atomic_folder(args.output, SCAN_FILES) as tmp:
+        simulate_scan(scene, tmp, views=args.views, rig=rig, settings=settings,
+                      seed=args.seed, progress=progress, calibration=not args.no_calibration,
+                      workers=args.workers)
     return 0

@@ -21,7 +21,15 @@ from pathlib import Path
 
 from ..errors import NurbscanError
 from .iges import iges_text, write_iges
-from .mesh import MESH_FORMATS, MeshResult, build_mesh, mesh_bytes, tessellate, write_mesh
+from .mesh import (
+    MEMORY_BUDGET,
+    MESH_FORMATS,
+    MeshResult,
+    build_mesh,
+    mesh_bytes,
+    tessellate,
+    write_mesh,
+)
 from .rhino import to_rhino_curve, to_rhino_surface, write_3dm
 
 __all__ = ["FORMATS", "NURBS_FORMATS", "MESH_FORMATS", "DEFAULT_KINDS", "ALL_KINDS",
@@ -153,7 +161,8 @@ def select(model, kinds=DEFAULT_KINDS) -> tuple[list, list]:
 def export_model(model, path: str | os.PathLike, fmt: str | None = None,
                  kinds=DEFAULT_KINDS, colour: bool = True, per_span: int = 4,
                  points: bool = False, patches: bool = False,
-                 max_triangles: int | None = None, progress=None) -> Path:
+                 max_triangles: int | None = None, progress=None,
+                 memory_budget: float | None = MEMORY_BUDGET) -> Path:
     """Export a model (a folder or a loaded Model) to ``path`` in ``fmt`` (default: suffix).
 
     NURBS formats (3dm, igs, step) hold the model's CAD surface set
@@ -162,7 +171,9 @@ def export_model(model, path: str | os.PathLike, fmt: str | None = None,
     obj, ply, stl) the fused mesh of the object (:func:`fused_mesh`, at most
     ``max_triangles``), or with ``patches`` the tessellated per-view patches of
     :func:`build_mesh`; coloured from the white-light images when ``colour`` and the scan can
-    be found. The file is written atomically.
+    be found. The file is written atomically. ``memory_budget`` (bytes, None: no limit): a
+    tessellation of the patches estimated to need more is refused before it is built
+    (:func:`nurbscan.export.mesh.check_memory`).
     """
     path = Path(path)
     fmt = (fmt or path.suffix.lstrip(".")).lower()
@@ -203,5 +214,5 @@ def export_model(model, path: str | os.PathLike, fmt: str | None = None,
         return write_mesh(path, fused_mesh(model, colour, max_triangles, progress), fmt)
     rig = find_rig(model) if colour else None
     images = find_white_images(model) if colour and rig is not None else {}
-    mesh = build_mesh(model, rig, images, per_span=per_span)
+    mesh = build_mesh(model, rig, images, per_span=per_span, memory_budget=memory_budget)
     return write_mesh(path, mesh, fmt)

@@ -3,6 +3,7 @@
 from .atomic import (
     atomic_folder,
     atomic_path,
+    atomic_paths,
     folder_lock,
     read_bytes,
     read_json,
@@ -16,6 +17,7 @@ from .scan import Scan, load_scan
 __all__ = [
     "atomic_folder",
     "atomic_path",
+    "atomic_paths",
     "folder_lock",
     "read_bytes",
     "Scan",

@@ -70,7 +70,26 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
             tmp.unlink()
         if isinstance(exc, OSError):
             raise _cannot_write(path, exc) from None
+        from ..errors import NurbscanError
+
+        if isinstance(exc, NurbscanError) and str(tmp) in str(exc):  # a writer of ``tmp``
+            raise NurbscanError(str(exc).replace(str(tmp), str(path))) from None
         raise
+
+
+@contextlib.contextmanager
+def atomic_paths(*paths: str | os.PathLike) -> Iterator[tuple[Path, ...]]:
+    """:func:`atomic_path` for files that belong together (an image and its sidecar, a
+    table and its Markdown): yield one temporary path per target; only when all are
+    written are they renamed onto the targets, one after the other.
+
+    A failure while writing any of them (a full disk, a read-only folder, a target that is
+    a folder) leaves every target as it was: never a new image beside an old sidecar. Each
+    target is checked before anything is written.
+    """
+    with contextlib.ExitStack() as stack:
+        tmps = tuple(stack.enter_context(atomic_path(p)) for p in paths)
+        yield tmps
 
 
 def _remove_dead_temporaries(path: Path, suffix: str) -> None:
@@ -198,8 +217,11 @@ def folder_lock(path: str | os.PathLike) -> Iterator[Path]:
     else:  # pragma: no cover - a lock file replaced 100 times in a row
         raise NurbscanError(f"{path}: cannot take the lock {lock}")
     try:
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
+        try:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
+        except OSError as exc:  # a full disk: not even the lock's pid fits
+            raise _cannot_write(path, exc) from None
         yield lock
     finally:
         with contextlib.suppress(OSError):

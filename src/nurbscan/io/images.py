@@ -1,6 +1,6 @@
 """Image files: PNG, TIFF or JPEG, 8 or 16 bit, grey or colour, any size.
 
-OpenCV does the decoding and encoding (``cv2.imread`` / ``cv2.imwrite``); this module fixes
+OpenCV does the decoding and encoding (``cv2.imread`` / ``cv2.imencode``); this module fixes
 the channel order to RGB and the sample type to float in [0, 1] on request, and turns every
 failure into a one-line :class:`~nurbscan.errors.NurbscanError` naming the file.
 
@@ -14,6 +14,7 @@ decoding it (a 32000 x 32000 PNG would take 9 GB before failing).
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
@@ -21,7 +22,7 @@ import cv2
 import numpy as np
 
 from ..errors import NurbscanError
-from .atomic import atomic_path
+from .atomic import write_bytes
 
 #: Largest image read, pixels: above the largest camera sensors (about 150 Mpx); an image this
 #: size takes 2.4 GB as float RGB.
@@ -52,7 +53,9 @@ def read_image(path: str | os.PathLike, as_float: bool = True) -> np.ndarray:
     if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
         raise NurbscanError(f"{path}: {size[0]} x {size[1]} px, more than the "
                             f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpx an image may have here")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
+    with _codec_messages_silenced():  # libpng's "Read Error": the one line below says it
+        img = cv2.imread(str(path),
+                         cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
     if img is None or img.size == 0:
         raise NurbscanError(f"{path}: not a readable image (corrupt or unsupported format)")
     if img.ndim == 2:
@@ -74,10 +77,36 @@ def read_image(path: str | os.PathLike, as_float: bool = True) -> np.ndarray:
     raise NurbscanError(f"{path}: unsupported sample type {img.dtype}")
 
 
+@contextlib.contextmanager
+def _codec_messages_silenced():
+    """Send file descriptor 2 to ``/dev/null`` while OpenCV decodes: libpng and libtiff print
+    their own messages on a corrupt file (``libpng error: Read Error``) before OpenCV returns
+    None, which :func:`read_image` reports as one line naming the file."""
+    import sys
+
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        null = os.open(os.devnull, os.O_WRONLY)
+    except OSError:
+        yield
+        return
+    try:
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(null)
+
+
 def write_image(path: str | os.PathLike, image: np.ndarray) -> Path:
     """Write an RGB (H, W, 3) or grey (H, W) uint8 or uint16 image atomically.
 
-    The format follows the file name's extension (.png, .tif/.tiff, .jpg).
+    The format follows the file name's extension (.png, .tif/.tiff, .jpg). The image is
+    encoded in memory (``cv2.imencode``) and the bytes written atomically
+    (:func:`~nurbscan.io.write_bytes`): a full disk is a one-line error naming ``path``,
+    not a codec's message.
     """
     path = Path(path)
     image = np.asarray(image)
@@ -85,10 +114,13 @@ def write_image(path: str | os.PathLike, image: np.ndarray) -> Path:
         raise TypeError(f"write_image wants uint8 or uint16, got {image.dtype}")
     if image.ndim == 3:
         image = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2BGR)
-    with atomic_path(path) as tmp:
-        if not cv2.imwrite(str(tmp), image):
-            raise NurbscanError(f"{path}: could not write image")
-    return path
+    try:
+        ok, buf = cv2.imencode(path.suffix.lower() or ".png", image)
+    except cv2.error:
+        ok = False
+    if not ok:
+        raise NurbscanError(f"{path}: could not encode the image as {path.suffix or 'PNG'!r}")
+    return write_bytes(path, buf.tobytes())
 
 
 #: JPEG start-of-frame markers (baseline, extended, progressive, lossless; Huffman and

@@ -165,7 +165,8 @@ class Pattern:
             count = self.nbands(name)
             if count > len(seq):
                 raise NurbscanError(
-                    f"pattern: {count} {name} bands ({size} px at pitch {self.pitch}) exceed the "
+                    f"pattern: {count} {name} bands ({'width' if name == 'vertical' else 'height'}"
+                    f" {size} px at pitch {self.pitch}) exceed the "
                     f"sequence length q^n = {len(seq)}; use a larger pitch, a smaller image, "
                     "or a longer window n"
                 )

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import NurbscanError
-from ..io import write_image, write_json
+from ..io import atomic_paths, write_image, write_json
 
 LINE_PATTERN_TYPE = "nurbscan.line-pattern"
 LINE_PATTERN_VERSION = 1
@@ -91,7 +91,8 @@ def _unique_windows(codes: np.ndarray, n: int) -> bool:
 def save_pattern_files(image_path: str | os.PathLike, image: np.ndarray, sidecar: dict
                        ) -> tuple[Path, Path]:
     """Write a pattern's image (PNG or TIFF, lossless) and its ``.json`` sidecar beside it,
-    each atomically; return the (image, sidecar) paths."""
+    together atomically (:func:`nurbscan.io.atomic_paths`: never a new image beside an old
+    sidecar); return the (image, sidecar) paths."""
     image_path = Path(image_path)
     if image_path.suffix.lower() not in (".png", ".tif", ".tiff"):
         raise NurbscanError(
@@ -99,8 +100,9 @@ def save_pattern_files(image_path: str | os.PathLike, image: np.ndarray, sidecar
             f"{image_path.suffix or 'no suffix'!r}"
         )
     json_path = image_path.with_suffix(".json")
-    write_image(image_path, image)
-    write_json(json_path, sidecar)
+    with atomic_paths(image_path, json_path) as (tmp_image, tmp_json):
+        write_image(tmp_image, image)
+        write_json(tmp_json, sidecar)
     return image_path, json_path
 
 

@@ -1,0 +1,146 @@
+"""The command-line bad-input suite (issue #34), a sample: benchmarks/bench_badinput.py runs
+every command with every class of damaged input; here one or two cases of each class run on
+the quick fixtures (flat images, a synthetic model), and the export memory budget.
+
+Each case must exit with status 2, print one line naming the damaged input (no traceback)
+and leave its folder as it was (no partial output, no temporaries).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from _export_fixtures import sphere_model
+from nurbscan.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _bench():
+    """benchmarks/bench_badinput.py as a module (loaded once)."""
+    if "bench_badinput" not in sys.modules:
+        spec = importlib.util.spec_from_file_location("bench_badinput",
+                                                      ROOT / "benchmarks" / "bench_badinput.py")
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules["bench_badinput"] = mod  # its dataclasses look their module up
+        spec.loader.exec_module(mod)
+    return sys.modules["bench_badinput"]
+
+
+#: One or two cases of each class, over the commands (ids of bench_badinput.cases).
+SAMPLE = (
+    "reconstruct/missing/scan folder",
+    "export/empty/in/model/model.json",
+    "rig/truncated/in/rig.json",
+    "detect/wrong_type/in/pattern.json is a named pipe",
+    "calibrate/wrong_type/in/scan/scan.json is /dev/zero",
+    "detect/wrong_size/white 200 x 150",
+    "pattern/wrong_size/in/pattern.png 40000 x 40000 px header",
+    "calibrate/malformed_json/calibration.target.inner_corners [0, 0]",
+    "simulate/malformed_json/rig.json camera.k1 a string",
+    "rig/malformed_json/in/rig.json nested 100000 deep",
+    "pattern/unwritable/pattern.json is a folder",
+    "rig/unwritable/read-only folder",
+    "pattern/disk_full/RLIMIT_FSIZE 0 B",
+    "simulate/absurd_options/--seed -1",
+    "export/absurd_options/--per-span 0",
+)
+
+
+@pytest.fixture(scope="module")
+def suite(tmp_path_factory):
+    bench = _bench()
+    fixtures = bench.make_fixtures(tmp_path_factory.mktemp("badinput") / "fixtures",
+                                   full=False)
+    return bench, fixtures
+
+
+def test_sample_of_bad_inputs_fails_cleanly(suite, tmp_path):
+    bench, fixtures = suite
+    by_id = {c.id: c for c in bench.cases(full=False)}
+    missing = [i for i in SAMPLE if i not in by_id]
+    assert not missing, missing
+    results = bench.run_cases([by_id[i] for i in SAMPLE], fixtures, tmp_path)
+    bad = {r["id"]: (r["problems"], r["stderr"][-600:]) for r in results if r["problems"]}
+    assert not bad, json.dumps(bad, indent=1)
+    summary = bench.summarise(results)
+    assert summary["passed"] == len(SAMPLE) and summary["tracebacks"] == 0
+    assert set(summary["per class"]) == set(bench.CLASSES)
+
+
+def test_error_lines_ignore_progress_and_usage_only():
+    bench = _bench()
+    err = ("usage: nurbscan x [-h]\n  continued\n[  0.1 s] load m\n"
+           "nurbscan x: warning: a warning\n/a/b.py:195: UserWarning: image: blank\n"
+           "nurbscan x: error: m/model.json: not JSON\n")
+    assert bench.error_lines(err) == ["nurbscan x: error: m/model.json: not JSON"]
+    assert len(bench.error_lines(err + "Traceback (most recent call last):\n")) == 2
+
+
+def test_snapshot_sees_new_changed_and_removed_files(tmp_path):
+    bench = _bench()
+    (tmp_path / "a").write_text("1")
+    before = bench.snapshot(tmp_path)
+    (tmp_path / ".a.tmp-1").write_text("x")
+    assert set(bench.snapshot(tmp_path)) - set(before) == {".a.tmp-1"}
+    (tmp_path / ".a.tmp-1").unlink()
+    (tmp_path / "a").write_text("22")
+    assert bench.snapshot(tmp_path)["a"] != before["a"]
+
+
+# ---------------------------------------------------------------------- export memory budget
+def test_tessellation_vertices_match_the_tessellation():
+    from nurbscan.export.mesh import tessellate, tessellation_vertices
+
+    surfaces = [s["surface"] for s in sphere_model(with_teapot=True).surfaces]
+    for k in (1, 3, 7):
+        assert tessellation_vertices(surfaces, k) == sum(len(tessellate(s, k)[0])
+                                                         for s in surfaces)
+
+
+def test_export_per_span_over_the_memory_budget_is_refused_before_allocating(tmp_path, capsys):
+    """Four sphere patches (1 x 2 knot spans each) at --per-span 100: 81,204 vertices, about
+    0.121 GiB at 1600 B per vertex: over a 0.1 GiB budget, refused with the estimate; the
+    largest per-span the message offers is exported."""
+    import resource
+
+    from nurbscan.export.mesh import BYTES_PER_VERTEX, largest_per_span, memory_estimate
+
+    model = sphere_model()
+    model.save(tmp_path / "model")
+    surfaces = [s["surface"] for s in model.surfaces if s["kind"] == "gordon"]
+    assert memory_estimate(surfaces, 100) == 4 * 101 * 201 * BYTES_PER_VERTEX
+    out = tmp_path / "m.glb"
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    assert main(["export", str(tmp_path / "model"), "--patches", "--no-colour", "--per-span",
+                 "100", "--memory-budget", "0.1", "-o", str(out), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "Traceback" not in err[0], err
+    assert "--per-span 100" in err[0] and "0.121 GiB" in err[0] and "0.1 GiB" in err[0], err
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["model"]
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0 < 100_000  # KiB
+    k = largest_per_span(surfaces, 0.1 * 2**30)
+    assert memory_estimate(surfaces, k) <= 0.1 * 2**30 < memory_estimate(surfaces, k + 1)
+    assert f"at most {k} fits" in err[0]
+    assert main(["export", str(tmp_path / "model"), "--patches", "--no-colour", "--per-span",
+                 str(k), "--memory-budget", "0.1", "-o", str(out), "-q"]) == 0
+    import trimesh
+
+    mesh = trimesh.load(out, force="mesh")
+    assert len(mesh.vertices) <= 4 * (k + 1) * (2 * k + 1)
+    assert len(mesh.vertices) > 2 * (k + 1) * (2 * k + 1)  # merged seams only
+
+
+@pytest.mark.parametrize("budget", ["0", "-1", "nan", "inf"])
+def test_export_absurd_memory_budget_is_one_line(tmp_path, capsys, budget):
+    sphere_model().save(tmp_path / "model")
+    assert main(["export", str(tmp_path / "model"), "--patches", "--memory-budget", budget,
+                 "-o", str(tmp_path / "m.glb"), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--memory-budget {float(budget)}" in err[0], err
+    assert not (tmp_path / "m.glb").exists()
