@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from _export_fixtures import CENTRE, R, quarter_sphere
-from nurbscan.merge.cad import CadOptions, cad_set, overlap_area, sub_surface
+from nurbscan.merge.cad import CadOptions, cad_set, outline, overlap_area, sub_surface, unpinched
 from nurbscan.reconstruct import Model
 
 OPT = CadOptions(cell_mm=0.5, cover_mm=0.4)
@@ -108,9 +108,125 @@ def test_cad_set_has_no_overlap_and_covers_the_data(two_views):
     assert {(s["view"], s["patch"]) for s in cad.surfaces} == {(0, 0), (1, 1)}
 
 
+def _faces(shape):
+    from OCP.TopAbs import TopAbs_FACE
+    from OCP.TopExp import TopExp_Explorer
+
+    ex, faces = TopExp_Explorer(shape, TopAbs_FACE), []
+    while ex.More():
+        faces.append(ex.Current())
+        ex.Next()
+    return faces
+
+
+def _occ_area(face) -> float:
+    from OCP.BRepGProp import BRepGProp
+    from OCP.GProp import GProp_GProps
+
+    g = GProp_GProps()
+    BRepGProp.SurfaceProperties_s(face, g, 1e-9)
+    return g.Mass()
+
+
+def _cells_area(S, u, v, keep, n=8):
+    """Area of the kept cells of S (midpoint rule, n x n points per cell)."""
+    t = (np.arange(n) + 0.5) / n
+    total = 0.0
+    for i, j in zip(*np.nonzero(keep), strict=True):
+        uu, vv = np.meshgrid(u[i] + (u[i + 1] - u[i]) * t, v[j] + (v[j + 1] - v[j]) * t,
+                             indexing="ij")
+        D = S.derivatives(uu.ravel(), vv.ravel(), 1)
+        total += np.linalg.norm(np.cross(D[1, 0], D[0, 1]), axis=1).sum() * (
+            (u[i + 1] - u[i]) * (v[j + 1] - v[j]) / n ** 2)
+    return total
+
+
+def _inside(loop, x, y):
+    """Even-odd rule: whether points (x, y) lie inside the polygon ``loop`` (n, 2)."""
+    a, b = loop, np.roll(loop, -1, axis=0)
+    inside = np.zeros(len(x), bool)
+    for (x0, y0), (x1, y1) in zip(a.astype(float), b.astype(float), strict=True):
+        cross = (y0 > y) != (y1 > y)
+        xs = x0 + (y - y0) * (x1 - x0) / np.where(y1 == y0, 1.0, y1 - y0)
+        inside ^= cross & (x < xs)
+    return inside
+
+
+def test_outline_gives_back_the_mask():
+    """The loops of random masks (holes, corner-touching cells) give back exactly the mask
+    (even-odd rule at the cell centres), region by region; outer loops counter-clockwise,
+    holes clockwise, areas adding up to the cell count; no collinear corners."""
+    rng = np.random.default_rng(2)
+    for trial in range(20):
+        mask = rng.random((14, 11)) < (0.55 if trial % 2 else 0.8)
+        regions = outline(mask)
+        ii, jj = np.meshgrid(np.arange(14) + 0.5, np.arange(11) + 0.5, indexing="ij")
+        got = np.zeros(mask.shape, int)
+        for outer, holes in regions:
+            inside = _inside(outer, ii.ravel(), jj.ravel())
+            for h in holes:
+                inside ^= _inside(h, ii.ravel(), jj.ravel())
+            got += inside.reshape(mask.shape)
+            area = [0.5 * np.sum(lp[:, 0] * np.roll(lp[:, 1], -1) - np.roll(lp[:, 0], -1)
+                                 * lp[:, 1]) for lp in [outer, *holes]]
+            assert area[0] > 0 and all(a < 0 for a in area[1:])
+            assert sum(area) == inside.sum()
+            for lp in [outer, *holes]:
+                d0, d1 = lp - np.roll(lp, 1, axis=0), np.roll(lp, -1, axis=0) - lp
+                assert np.all(d0[:, 0] * d1[:, 1] - d0[:, 1] * d1[:, 0] != 0)
+        assert np.array_equal(got, mask.astype(int)), trial
+
+
+def test_unpinched_drops_a_cell_per_checkerboard():
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        mask = rng.random((12, 9)) < 0.6
+        m = unpinched(mask)
+        assert not (m & ~mask).any()
+        blocks = np.stack([m[:-1, :-1], m[1:, :-1], m[:-1, 1:], m[1:, 1:]])
+        cheq = ((blocks[0] & blocks[3] & ~blocks[1] & ~blocks[2])
+                | (blocks[1] & blocks[2] & ~blocks[0] & ~blocks[3]))
+        assert not cheq.any()
+        assert (mask & ~m).sum() <= (mask.sum() + 1) // 2
+
+
+def test_trimmed_face_is_the_kept_cells():
+    """A trimmed face (OpenCASCADE) of a mask with a hole and a notch: valid
+    (BRepCheck_Analyzer), its area (BRepGProp) that of the kept cells (midpoint rule on our
+    own surface) to 1e-4, one face per region."""
+    pytest.importorskip("OCP")
+    from OCP.BRepCheck import BRepCheck_Analyzer
+
+    from nurbscan.export.step import trimmed_faces
+
+    S = _band(quarter_sphere(0))
+    (u0, u1), (v0, v1) = S.domain
+    u, v = np.linspace(u0, u1, 11), np.linspace(v0, v1, 9)
+    keep = np.ones((10, 8), bool)
+    keep[3:5, 2:5] = False   # a hole
+    keep[8:, 6:] = False     # a notch
+    keep[0, 0] = False
+    keep[1, 1] = False       # a pinch corner: (0, 0) and (1, 1) out, (0, 1), (1, 0) kept
+    assert not BRepCheck_Analyzer(trimmed_faces(S, u, v, keep)[0]).IsValid()
+    keep = unpinched(keep)
+    assert keep.sum() == 10 * 8 - 6 - 4 - 2 - 1
+    faces = trimmed_faces(S, u, v, keep)
+    assert len(faces) == 1
+    assert BRepCheck_Analyzer(faces[0]).IsValid()
+    want = _cells_area(S, u, v, keep)
+    assert abs(_occ_area(faces[0]) - want) / want < 1e-4, (_occ_area(faces[0]), want)
+    two = keep.copy()
+    two[5, :] = False
+    faces = trimmed_faces(S, u, v, two)
+    assert len(faces) == 2
+    got = sum(_occ_area(f) for f in faces)
+    assert abs(got - _cells_area(S, u, v, two)) / got < 1e-4
+
+
 def test_step_read_back_as_sewn_shells(two_views, tmp_path):
-    """STEP read back by OpenCASCADE (STEPControl_Reader): every face, at most 2 shells,
-    no face outside a shell after sewing."""
+    """STEP of the CAD set (one trimmed face per region of a patch's kept cells) read back
+    by OpenCASCADE (STEPControl_Reader): every face, at most two shells, no face outside a
+    shell; the faces' area that of the kept cells."""
     pytest.importorskip("OCP")
     from OCP.IFSelect import IFSelect_RetDone
     from OCP.STEPControl import STEPControl_Reader
@@ -119,23 +235,70 @@ def test_step_read_back_as_sewn_shells(two_views, tmp_path):
 
     m, _ = two_views
     cad = cad_set(m, None, OPT)
-    path = write_step(tmp_path / "m.step", [d["surface"] for d in cad.surfaces])
+    regions = sum(len(outline(p["keep"])) for p in cad.patches)
+    path = write_step(tmp_path / "m.step", trimmed=cad.patches)
     rd = STEPControl_Reader()
     assert rd.ReadFile(str(path)) == IFSelect_RetDone
     rd.TransferRoots()
     shape = rd.OneShape()
     shells, loose = shell_count(shape)
-    from OCP.TopAbs import TopAbs_FACE
-    from OCP.TopExp import TopExp_Explorer
-
-    ex, faces = TopExp_Explorer(shape, TopAbs_FACE), 0
-    while ex.More():
-        faces += 1
-        ex.Next()
-    assert faces == len(cad.surfaces)
+    faces = _faces(shape)
+    assert len(faces) == regions == 2, (len(faces), regions)
     assert 1 <= shells <= 2 and loose == 0, (shells, loose)
+    want = sum(_cells_area(p["surface"], p["u"], p["v"], p["keep"], 3) for p in cad.patches)
+    got = sum(_occ_area(f) for f in faces)
+    assert abs(got - want) / want < 1e-3, (got, want)
     # sewn again by OpenCASCADE from what was read: still one or two shells
     assert shell_count(sew_faces([shape], 0.05))[0] <= 2
+    # the untrimmed sub-surfaces (3dm, igs) as faces: one per rectangle
+    path = write_step(tmp_path / "r.step", [d["surface"] for d in cad.surfaces])
+    rd = STEPControl_Reader()
+    rd.ReadFile(str(path))
+    rd.TransferRoots()
+    assert len(_faces(rd.OneShape())) == len(cad.surfaces) >= regions
+
+
+def _three_views():
+    """Three views on quarter 0's band: views 0 and 2 on the sphere, measured with noise;
+    view 1 a layer 0.25 mm outside over the band's middle, its edge points exactly on it (the
+    least residual: the best score), as a view whose edge points are all off together."""
+    A = _band(quarter_sphere(0))
+    B = _scaled(sub_surface(A, (0.3, 0.7), A.domain[1]), R + 0.25)
+    rng = np.random.default_rng(7)
+    surfaces, edges, views = [], [], []
+    for v, S, noise in ((0, A, 0.01), (1, B, 0.0), (2, A, 0.01)):
+        surfaces.append({"kind": "gordon", "view": v, "patch": 0, "n_curves": [41, 41],
+                         "vertical": [0, 1], "horizontal": [0, 1], "surface": S})
+        X = _grid(S, 100)
+        X = X + noise * rng.standard_normal((len(X), 1)) * (X - CENTRE) / R
+        edges.append(X)
+        views.append(np.full(len(X), v))
+    m = Model(surfaces=surfaces, views=[{"index": v, "table_angle": 0.0} for v in range(3)])
+    m.edge_points, m.edge_view = np.concatenate(edges), np.concatenate(views)
+    return m
+
+
+def test_cross_view_consistency_cuts_the_odd_layer():
+    """View 1's layer, 0.25 mm off the sphere and the two other views, wins ownership by
+    score; the consistency cut (step 5) removes it and the other views' cells take its
+    place: no CAD surface farther than 1e-6 mm from the sphere, the band covered as
+    without the cut (area within 1 %), overlap under 1 %."""
+    m = _three_views()
+    off = cad_set(m, None, CadOptions(cell_mm=0.5, cover_mm=0.4, consistent_mm=None))
+    on = cad_set(m, None, OPT)
+
+    def radial(cad):
+        X = np.concatenate([_grid(d["surface"], 15) for d in cad.surfaces])
+        return np.abs(np.linalg.norm(X - CENTRE, axis=1) - R).max()
+
+    assert radial(off) > 0.24                       # the odd layer kept without the cut
+    assert radial(on) < 1e-6, on.info
+    assert on.info["cells_inconsistent"] > 0
+    assert 1 not in {d["view"] for d in on.surfaces}
+    want = _area(_band(quarter_sphere(0)))
+    ov = overlap_area(on.surfaces, tol=0.1)
+    assert abs(ov["area_mm2"] - want) / want < 0.01, (ov, want)
+    assert ov["share"] < 0.01, ov
 
 
 def test_3dm_and_igs_of_the_cad_set(two_views, tmp_path):
@@ -177,3 +340,40 @@ def test_step_without_ocp_is_a_one_line_error(two_views, tmp_path, monkeypatch):
     with pytest.raises(NurbscanError, match=r"nurbscan\[cad\]"):
         write_step(tmp_path / "x.step", [quarter_sphere(0)])
     assert not (tmp_path / "x.step").exists()
+
+
+def test_staircase_seam_sews_at_the_cad_tolerance():
+    """Two regions of two patches (cell grids 0.29 and 0.25 mm, one 0.02 mm outside the
+    other) meeting at a staircase seam up to a cell apart: one edge pair sewn at 0.05 mm,
+    the seam's at cad_sewing_tolerance (cell_mm + 0.05 = 0.35 mm): one shell of both."""
+    pytest.importorskip("OCP")
+    from nurbscan.export.step import sew_faces, shell_count, trimmed_faces
+    from nurbscan.merge.cad import CadSet, cad_sewing_tolerance
+
+    A = sub_surface(quarter_sphere(0), (0.45, 0.5), (0.47, 0.5))
+    B = _scaled(A, R + 0.02)
+    faces = []
+    for S, nu, nv, side in ((A, 16, 12, -1), (B, 19, 14, 1)):
+        (u0, u1), (v0, v1) = S.domain
+        u, v = np.linspace(u0, u1, nu + 1), np.linspace(v0, v1, nv + 1)
+        uc, vc = 0.5 * (u[1:] + u[:-1]), 0.5 * (v[1:] + v[:-1])
+        seam = u0 + (u1 - u0) * (0.45 + 0.2 * (vc - v0) / (v1 - v0))
+        du = (u1 - u0) / nu
+        keep = (uc[:, None] < seam[None]) if side < 0 else (uc[:, None] > seam[None] + 0.5 * du)
+        faces += trimmed_faces(S, u, v, unpinched(keep))
+    assert len(faces) == 2
+    cad = CadSet([], {"options": {"cell_mm": 0.3}})
+    assert cad_sewing_tolerance(cad) == pytest.approx(0.35)
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_Sewing
+
+    def sewn(tol):
+        sew = BRepBuilderAPI_Sewing(tol)
+        for f in faces:
+            sew.Add(f)
+        sew.Perform()
+        return sew.NbContigousEdges(), sew.NbFreeEdges()
+
+    tight, loose = sewn(0.05), sewn(cad_sewing_tolerance(cad))
+    assert tight[0] <= 1 and loose[0] >= 5, (tight, loose)
+    assert loose[1] <= tight[1] - 10, (tight, loose)
+    assert shell_count(sew_faces(faces, cad_sewing_tolerance(cad))) == (1, 0)

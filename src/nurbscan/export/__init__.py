@@ -194,13 +194,18 @@ def export_model(model, path: str | os.PathLike, fmt: str | None = None,
         if patches:
             curves, surfaces = select(model, kinds)
         else:
-            from ..merge.cad import cad_set
+            from ..merge.cad import cad_set, cad_sewing_tolerance
 
             if fmt == "step":
                 from .step import _ocp
 
                 _ocp()  # before the CAD set's work
             cad = cad_set(model, find_rig(model), progress=progress)
+            if fmt == "step":  # one trimmed face per region of a Gordon patch's kept cells
+                from .step import write_step
+
+                return write_step(path, trimmed=cad.patches, progress=progress,
+                                  tolerance=cad_sewing_tolerance(cad))
             curves, surfaces = [], [(f"cad view {d['view']}", d["surface"])
                                     for d in cad.surfaces]
         if fmt == "3dm":

@@ -18,7 +18,7 @@ from ..errors import NurbscanError
 from ..io.atomic import atomic_path
 from ..nurbs import NurbsSurface
 
-__all__ = ["occ_face", "sew_faces", "shell_count", "write_step"]
+__all__ = ["occ_face", "occ_surface", "sew_faces", "shell_count", "trimmed_faces", "write_step"]
 
 OCP_MISSING = ("STEP export needs OpenCASCADE (OCP): pip install 'nurbscan[cad]' "
                "(cadquery-ocp-novtk)")
@@ -44,10 +44,9 @@ def _knots(U: np.ndarray):
     return k, m
 
 
-def occ_face(s: NurbsSurface):
-    """A ``TopoDS_Face`` on the B-spline surface equal to ``s`` (natural boundary)."""
+def occ_surface(s: NurbsSurface):
+    """The ``Geom_BSplineSurface`` equal to ``s``."""
     _ocp()
-    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace
     from OCP.collections import Array2_double, Array2_gp_Pnt
     from OCP.Geom import Geom_BSplineSurface
     from OCP.gp import gp_Pnt
@@ -69,10 +68,77 @@ def occ_face(s: NurbsSurface):
         g = Geom_BSplineSurface(poles, w, ku, kv, mu, mv, s.degree_u, s.degree_v)
     else:
         g = Geom_BSplineSurface(poles, ku, kv, mu, mv, s.degree_u, s.degree_v)
-    mk = BRepBuilderAPI_MakeFace(g, 1e-6)
+    return g
+
+
+def occ_face(s: NurbsSurface):
+    """A ``TopoDS_Face`` on the B-spline surface equal to ``s`` (natural boundary)."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace
+
+    mk = BRepBuilderAPI_MakeFace(occ_surface(s), 1e-6)
     if not mk.IsDone():
         raise NurbscanError("STEP export: OpenCASCADE could not make a face of a surface")
     return mk.Face()
+
+
+def trimmed_faces(s: NurbsSurface, u: np.ndarray, v: np.ndarray, keep: np.ndarray) -> list:
+    """``TopoDS_Face`` s of the kept cells of ``s``: one face per 4-connected region of
+    ``keep`` (nu, nv), on the whole surface, bounded by the region's outline in the parameter
+    plane (cell boundaries ``u`` (nu + 1,), ``v`` (nv + 1,); holes as inner wires).
+
+    Each outline segment is an edge given by its pcurve (a ``Geom2d_Line`` on the surface)
+    between shared vertices; the 3-D curves are computed from the pcurves
+    (``BRepLib::BuildCurves3d``), and ``ShapeFix_Face`` settles the wires' orientation.
+    """
+    from OCP.BRepBuilderAPI import (
+        BRepBuilderAPI_MakeEdge,
+        BRepBuilderAPI_MakeFace,
+        BRepBuilderAPI_MakeVertex,
+        BRepBuilderAPI_MakeWire,
+    )
+    from OCP.BRepLib import BRepLib
+    from OCP.Geom2d import Geom2d_Line
+    from OCP.gp import gp_Dir2d, gp_Pnt, gp_Pnt2d
+    from OCP.ShapeFix import ShapeFix_Face
+
+    from ..merge.cad import outline
+
+    g = occ_surface(s)
+    u, v = np.asarray(u, float), np.asarray(v, float)
+
+    def wire(loop):
+        uv = np.column_stack([u[loop[:, 0]], v[loop[:, 1]]])
+        X = s.evaluate(uv[:, 0], uv[:, 1])
+        verts = [BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, x))).Vertex() for x in X]
+        mw = BRepBuilderAPI_MakeWire()
+        for k in range(len(uv)):
+            a, b = uv[k], uv[(k + 1) % len(uv)]
+            d = b - a
+            length = float(np.hypot(*d))
+            line = Geom2d_Line(gp_Pnt2d(float(a[0]), float(a[1])),
+                               gp_Dir2d(float(d[0]), float(d[1])))
+            e = BRepBuilderAPI_MakeEdge(line, g, verts[k], verts[(k + 1) % len(uv)], 0.0,
+                                        length)
+            if not e.IsDone():
+                raise NurbscanError("STEP export: OpenCASCADE could not make a trimming edge")
+            mw.Add(e.Edge())
+        if not mw.IsDone():
+            raise NurbscanError("STEP export: OpenCASCADE could not make a trimming wire")
+        return mw.Wire()
+
+    faces = []
+    for outer, holes in outline(np.asarray(keep, bool)):
+        mk = BRepBuilderAPI_MakeFace(g, wire(outer), True)
+        for h in holes:
+            mk.Add(wire(h))
+        if not mk.IsDone():
+            raise NurbscanError("STEP export: OpenCASCADE could not make a trimmed face")
+        f = mk.Face()
+        BRepLib.BuildCurves3d_s(f)
+        fix = ShapeFix_Face(f)
+        fix.Perform()
+        faces.append(fix.Face())
+    return faces
 
 
 def sew_faces(faces, tolerance: float = 0.05):
@@ -109,17 +175,21 @@ def shell_count(shape) -> tuple[int, int]:
     return shells, faces - in_shells
 
 
-def write_step(path: str | os.PathLike, surfaces, tolerance: float = 0.05,
-               progress=None) -> Path:
-    """Write surfaces, sewn into shells, as a STEP file (mm) atomically.
+def write_step(path: str | os.PathLike, surfaces=(), tolerance: float = 0.05,
+               progress=None, trimmed=()) -> Path:
+    """Write surfaces and trimmed surfaces, sewn into shells, as a STEP file (mm) atomically.
 
     Parameters
     ----------
     path : path-like
     surfaces : iterable of NurbsSurface
+        Faces with their natural boundary.
     tolerance : float
         Sewing tolerance, mm.
     progress : callable, optional
+    trimmed : iterable of dict
+        Trimmed faces: ``surface``, ``u``, ``v``, ``keep`` as in
+        :attr:`nurbscan.merge.cad.CadSet.patches` (:func:`trimmed_faces`).
     """
     _ocp()
     from OCP.IFSelect import IFSelect_RetDone
@@ -128,6 +198,8 @@ def write_step(path: str | os.PathLike, surfaces, tolerance: float = 0.05,
 
     say = progress or (lambda _m: None)
     faces = [occ_face(s) for s in surfaces]
+    for p in trimmed:
+        faces += trimmed_faces(p["surface"], p["u"], p["v"], p["keep"])
     if not faces:
         raise NurbscanError("STEP export: nothing to write (no surfaces)")
     say(f"STEP: sewing {len(faces)} faces (tolerance {tolerance:g} mm)")

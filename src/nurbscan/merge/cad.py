@@ -20,7 +20,12 @@ coincide, only the best patch, and cuts every patch back to its measured data:
    patches overlap one another too, 22 % of their area on a 1024 x 768 scan) lies on it:
    within ``cover_mm`` in space, normals within 60 degrees (one k-nearest query for all
    cells). Two views' layers then meet at a staircase seam one cell wide.
-5. **Rectangles.** Each patch's kept cells are merged into maximal rectangles (runs of rows
+5. **Cross-view consistency.** A kept cell over which other views' supported cells lie
+   (within ``cell_mm`` along the surface, normals within 60 degrees) but none of them within
+   ``consistent_mm`` along its normal disagrees with every other view that saw the place: it
+   is cut, and ownership is settled again without it, so that another view's cell takes its
+   place. Repeated ``consistency_rounds`` times (the replacing cell is checked in turn).
+6. **Rectangles.** Each patch's kept cells are merged into maximal rectangles (runs of rows
    with the same kept columns), and each rectangle becomes the exact sub-surface of the
    Gordon surface over it (knots inserted to multiplicity ``p`` at its ends, Piegl and
    Tiller A5.1 per row): no refit, the geometry is the patch's.
@@ -39,7 +44,8 @@ from ..errors import NurbscanError
 from ..nurbs import NurbsSurface
 from ..nurbs.curve import insert_knot_h
 
-__all__ = ["CadOptions", "CadSet", "cad_set", "overlap_area", "sub_surface"]
+__all__ = ["CadOptions", "CadSet", "cad_set", "cad_sewing_tolerance", "outline", "overlap_area",
+           "sub_surface", "unpinched"]
 
 
 @dataclass(frozen=True)
@@ -64,6 +70,12 @@ class CadOptions:
         Cells of other patches examined per cell.
     max_cells : int
         Largest number of cells along one side of a patch.
+    consistent_mm : float or None
+        A kept cell is cut when other views' cells lie over it but none within this distance
+        along its normal (None: no such cut). The views' layers lie a robust standard
+        deviation of 0.03 mm apart on the 1024 x 768 teapot scan: 0.1 mm is 3.3 of them.
+    consistency_rounds : int
+        Rounds of the cross-view cut (each followed by the ownership step).
     """
 
     cell_mm: float = 0.3
@@ -72,6 +84,8 @@ class CadOptions:
     cover_mm: float = 0.24
     neighbours: int = 12
     max_cells: int = 400
+    consistent_mm: float | None = 0.1
+    consistency_rounds: int = 2
 
     def __post_init__(self) -> None:
         if not (self.cell_mm > 0 and self.support_pitch > 0 and self.cover_mm > 0):
@@ -91,6 +105,10 @@ class CadSet:
     surfaces : list of dict
         ``view``, ``patch``, ``rect`` (``[u0, u1, v0, v1]``, the Gordon patch's parameters)
         and ``surface`` (the exact sub-surface, NurbsSurface).
+    patches : list of dict
+        One per kept Gordon patch: ``view``, ``patch``, ``surface`` (the whole Gordon
+        surface), ``u`` (nu + 1,) and ``v`` (nv + 1,) its cell boundaries and ``keep``
+        (nu, nv) bool, its kept cells (the surfaces above are their rectangles).
     info : dict
         Counts and areas: ``patches``, ``patches_kept``, ``surfaces``, ``cells``,
         ``cells_kept``, ``cells_unsupported``, ``cells_covered``, ``area_mm2`` (kept cells),
@@ -99,10 +117,11 @@ class CadSet:
 
     surfaces: list
     info: dict = field(default_factory=dict)
+    patches: list = field(default_factory=list)
 
 
 def cad_set(model, rig=None, options: CadOptions | None = None, progress=None) -> CadSet:
-    """The non-overlapping CAD surface set of a merged model (module notes, steps 1-5).
+    """The non-overlapping CAD surface set of a merged model (module notes, steps 1-6).
 
     Parameters
     ----------
@@ -135,11 +154,23 @@ def cad_set(model, rig=None, options: CadOptions | None = None, progress=None) -
     score = _scores(model, rig, gordon, cells, P, N, owner, view, pitch, _camera_centres)
     covered = _covered(P, N, owner, view, score, supported, opt)
     keep = supported & ~covered
-    out, at = [], 0
+    inconsistent = np.zeros(len(P), bool)
+    for _ in range(opt.consistency_rounds if opt.consistent_mm is not None else 0):
+        cut = _inconsistent(P, N, view[owner], keep, supported & ~inconsistent, opt)
+        if not cut.any():
+            break
+        inconsistent |= cut
+        covered = _covered(P, N, owner, view, score, supported & ~inconsistent, opt)
+        keep = supported & ~inconsistent & ~covered
+    out, kept, at = [], [], 0
     for s, c in zip(gordon, cells, strict=True):
         n = len(c["points"])
-        mask = keep[at:at + n].reshape(c["shape"])
+        mask = unpinched(keep[at:at + n].reshape(c["shape"]))
+        keep[at:at + n] = mask.ravel()
         at += n
+        if mask.any():
+            kept.append({"view": int(s["view"]), "patch": int(s["patch"]),
+                         "surface": s["surface"], "u": c["u"], "v": c["v"], "keep": mask})
         for (i0, i1, j0, j1) in _rectangles(mask):
             rect = [float(c["u"][i0]), float(c["u"][i1]), float(c["v"][j0]), float(c["v"][j1])]
             out.append({"view": int(s["view"]), "patch": int(s["patch"]), "rect": rect,
@@ -148,13 +179,28 @@ def cad_set(model, rig=None, options: CadOptions | None = None, progress=None) -
     info = {"patches": len(gordon), "patches_kept": len({(d["view"], d["patch"]) for d in out}),
             "surfaces": len(out), "cells": int(len(P)), "cells_kept": int(keep.sum()),
             "cells_unsupported": int((~supported).sum()),
-            "cells_covered": int((covered & supported).sum()),
+            "cells_covered": int((covered & supported & ~inconsistent).sum()),
+            "cells_inconsistent": int(inconsistent.sum()),
             "area_mm2": float(area[keep].sum()), "area_all_mm2": float(area.sum()),
             "pitch_mm": pitch, "options": opt.to_dict()}
     say(f"CAD set: {info['surfaces']} surfaces from {info['patches_kept']} of "
         f"{info['patches']} Gordon patches; {info['cells_unsupported']} of {info['cells']} "
-        f"cells past the data cut, {info['cells_covered']} under a better view's patch")
-    return CadSet(out, info)
+        f"cells past the data cut, {info['cells_covered']} under a better view's patch, "
+        f"{info['cells_inconsistent']} off the other views' cells")
+    return CadSet(out, info, kept)
+
+
+def cad_sewing_tolerance(cad: CadSet, shared: float = 0.05) -> float:
+    """Sewing tolerance (mm) of a CAD set's trimmed faces: ``cell_mm + shared``.
+
+    Two regions of kept cells (of two patches or two views) meet at a staircase seam whose
+    sides lie up to a cell apart along the surface (a cell is dropped when a better one lies
+    within ``cover_mm < cell_mm``) and less than ``consistent_mm`` apart along the normal;
+    ``shared`` is the tolerance of borders the patches share exactly. On the 1024 x 768
+    teapot (1050 trimmed faces): 0.05 mm sews 68 shells and leaves 689 faces loose, 0.2 mm
+    4 shells and 50, 0.35 mm 3 shells and 13, 0.5 mm 3 and 12.
+    """
+    return float(cad.info.get("options", {}).get("cell_mm", CadOptions().cell_mm)) + shared
 
 
 # ---------------------------------------------------------------------------- steps
@@ -261,6 +307,34 @@ def _covered(P, N, owner, view, score, supported, opt: CadOptions) -> np.ndarray
     s_me, s_o = score[owner[me]], score[owner[jj]]
     better = (s_o > s_me) | ((s_o == s_me) & (owner[jj] < owner[me]))
     out[idx] = (other & agree & better).any(1)
+    return out
+
+
+def _inconsistent(P, N, pview, cells, supported, opt: CadOptions,
+                  chunk: int = 65536) -> np.ndarray:
+    """Which of ``cells`` (bool) have supported cells of other views over them (within
+    ``cell_mm`` along the surface and ``4 max(cell_mm, consistent_mm)`` in space, normals
+    within 60 degrees) but none within ``consistent_mm`` along the cell's normal (step 5)."""
+    idx = np.flatnonzero(supported)
+    out = np.zeros(len(P), bool)
+    if len(idx) < 2:
+        return out
+    tree = cKDTree(P[idx])
+    reach = 4.0 * max(opt.cell_mm, opt.consistent_mm)
+    k = min(6 * opt.neighbours, len(idx))
+    todo = np.flatnonzero(cells)
+    for at in range(0, len(todo), chunk):
+        me = todo[at:at + chunk]
+        d, j = tree.query(P[me], k=k, distance_upper_bound=reach)
+        ok = np.isfinite(d)
+        jj = idx[np.where(ok, j, 0)]
+        D = P[jj] - P[me][:, None]
+        along = (D * N[me][:, None]).sum(-1)
+        across = np.sqrt(np.maximum((D * D).sum(-1) - along ** 2, 0.0))
+        other = (ok & (pview[jj] != pview[me][:, None])
+                 & ((N[jj] * N[me][:, None]).sum(-1) > 0.5) & (across < opt.cell_mm))
+        agree = other & (np.abs(along) <= opt.consistent_mm)
+        out[me] = other.any(1) & ~agree.any(1)
     return out
 
 
@@ -388,3 +462,89 @@ def _inside(S: NurbsSurface, X: np.ndarray, tol: float, iters: int = 12) -> np.n
     eu, ev = 1e-6 * (u1 - u0), 1e-6 * (v1 - v0)
     inside = (u > u0 + eu) & (u < u1 - eu) & (v > v0 + ev) & (v < v1 - ev)
     return inside & (d < tol)
+
+
+def unpinched(mask: np.ndarray) -> np.ndarray:
+    """The mask without pinch corners: where a 2 x 2 block of cells is a checkerboard (two
+    kept cells touching only at a corner), the block's first kept cell is dropped, until
+    none is left; a trimming wire through a pinch corner would touch itself."""
+    m = np.array(mask, bool)
+    while True:
+        a, b, c, d = m[:-1, :-1], m[1:, :-1], m[:-1, 1:], m[1:, 1:]
+        main = a & d & ~b & ~c
+        anti = b & c & ~a & ~d
+        if not (main.any() or anti.any()):
+            return m
+        i, j = np.nonzero(main)
+        m[i, j] = False
+        i, j = np.nonzero(anti)
+        m[i + 1, j] = False
+
+
+def outline(mask: np.ndarray) -> list[tuple[np.ndarray, list[np.ndarray]]]:
+    """The outlines of a boolean cell mask ``(nu, nv)``: per 4-connected region its outer
+    loop and its holes, as corner indices ``(i, j)`` (cell boundary indices, shape (n, 2)).
+
+    The region lies to the left of every loop (outer loops counter-clockwise in ``(i, j)``,
+    holes clockwise); collinear corners are dropped. Where two cells of a region touch only
+    at a corner the loop turns into the region (left), so loops never cross.
+    """
+    from scipy import ndimage
+
+    labels, n = ndimage.label(mask)
+    out = []
+    for k in range(1, n + 1):
+        loops = _loops(labels == k)
+        area = np.array([_signed_area(lp) for lp in loops])
+        outer = int(np.argmax(area))
+        out.append((loops[outer], [lp for j, lp in enumerate(loops) if j != outer]))
+    return out
+
+
+def _loops(mask: np.ndarray) -> list[np.ndarray]:
+    """Closed boundary loops of one region (the region on their left), corners only."""
+    m = np.pad(mask, 1)
+    inner = m[1:-1, 1:-1]
+    i, j = np.nonzero(inner & ~m[1:-1, :-2])          # no cell below: bottom edge, +i
+    segs = [np.column_stack([i, j, i + 1, j])]
+    i, j = np.nonzero(inner & ~m[2:, 1:-1])           # none to the right: +j
+    segs.append(np.column_stack([i + 1, j, i + 1, j + 1]))
+    i, j = np.nonzero(inner & ~m[1:-1, 2:])           # none above: -i
+    segs.append(np.column_stack([i + 1, j + 1, i, j + 1]))
+    i, j = np.nonzero(inner & ~m[:-2, 1:-1])          # none to the left: -j
+    segs.append(np.column_stack([i, j + 1, i, j]))
+    E = np.concatenate(segs)
+    starts: dict[tuple[int, int], list[int]] = {}
+    for e, (a, b) in enumerate(zip(E[:, 0].tolist(), E[:, 1].tolist(), strict=True)):
+        starts.setdefault((a, b), []).append(e)
+    used = np.zeros(len(E), bool)
+    loops = []
+    for e0 in range(len(E)):
+        if used[e0]:
+            continue
+        pts, e = [], e0
+        while not used[e]:
+            used[e] = True
+            pts.append(E[e, :2])
+            end = (int(E[e, 2]), int(E[e, 3]))
+            nxt = [f for f in starts[end] if not used[f]] or [e0]
+            if len(nxt) > 1:  # a pinch corner: turn left, into the region
+                d_in = E[e, 2:] - E[e, :2]
+                nxt = [f for f in nxt
+                       if d_in[0] * (E[f, 3] - E[f, 1]) - d_in[1] * (E[f, 2] - E[f, 0]) > 0]
+            e = nxt[0]
+        loops.append(_corners(np.array(pts)))
+    return loops
+
+
+def _corners(P: np.ndarray) -> np.ndarray:
+    """A closed polygon without its collinear vertices."""
+    d_prev = P - np.roll(P, 1, axis=0)
+    d_next = np.roll(P, -1, axis=0) - P
+    turn = d_prev[:, 0] * d_next[:, 1] - d_prev[:, 1] * d_next[:, 0]
+    return P[turn != 0]
+
+
+def _signed_area(P: np.ndarray) -> float:
+    x, y = P[:, 0].astype(float), P[:, 1].astype(float)
+    return 0.5 * float((x * np.roll(y, -1) - np.roll(x, -1) * y).sum())
