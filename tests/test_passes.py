@@ -205,3 +205,28 @@ def test_reconstruct_of_several_scans_checks_its_arguments(tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and expected in err[0], err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_reconstruct_of_several_scans_reconstructs_each_then_merges(tmp_path, monkeypatch):
+    """The wiring of ``nurbscan reconstruct SCAN_A SCAN_B``: each scan into OUTPUT-passK with
+    its calibration, then ``merge`` of those folders into OUTPUT with the scans and
+    calibrations for the colours (the two stages themselves are tested on their own)."""
+    from pathlib import Path
+
+    from nurbscan.cli import merge as merge_cli
+    from nurbscan.cli import reconstruct as reconstruct_cli
+
+    calls, merged = [], {}
+    monkeypatch.setattr(reconstruct_cli, "_run_one",
+                        lambda a: calls.append((a.scan, a.calib, a.output)) or 0)
+    monkeypatch.setattr(merge_cli, "run", lambda a: merged.update(vars(a)) or 0)
+    out = tmp_path / "m"
+    assert main(["reconstruct", "sa", "sb", "--calib", "ca.json", "cb.json", "-o", str(out),
+                 "-q", "--max-triangles", "1000"]) == 0
+    passes = [tmp_path / "m-pass1", tmp_path / "m-pass2"]
+    assert calls == [(Path("sa"), Path("ca.json"), passes[0]),
+                     (Path("sb"), Path("cb.json"), passes[1])]
+    assert merged["models"] == passes and merged["output"] == out
+    assert merged["scan"] == [Path("sa"), Path("sb")]
+    assert merged["calib"] == [Path("ca.json"), Path("cb.json")]
+    assert merged["max_triangles"] == 1000 and merged["quiet"] and not merged["no_refine"]
