@@ -13,7 +13,9 @@ only, never by the merge):
   refinement) against the true relative pose ``T_A T_B^-1`` of the two poses recorded in
   ``truth/scene.json``: rotation error (degrees) and the largest displacement error of a
   point of the object (mm, translation error plus the rotation error at the object's
-  radius); and the RMS distance over the overlap that the merge reports.
+  radius); and the RMS distance over the overlap that the merge reports, beside the same RMS
+  with the TRUE relative pose (``rms_true_pose_mm``: what a perfect alignment would report,
+  the passes' own surfaces' disagreement).
 
 Usage::
 
@@ -69,6 +71,15 @@ def surface_figures(fused, scene, P_true: np.ndarray, tol: float = 0.5,
             "faces": int(len(F)), "area_mm2": float(tm.area)}
 
 
+def rms_true_pose(model_b, model_a, T_true: np.ndarray) -> float:
+    """RMS over the overlap of pass B's surface samples (as the merge takes them) moved by
+    the TRUE relative pose to pass A's fused mesh (mm; :func:`mesh_overlap_rms`)."""
+    from nurbscan.merge.passes import PassOptions, mesh_overlap_rms, pass_surface
+
+    P, _ = pass_surface(model_b, PassOptions())
+    return mesh_overlap_rms(P, T_true, model_a.fused, PassOptions().alignment.overlap_distance)[1]
+
+
 def main(argv=None) -> int:
     from nurbscan.io.atomic import read_json
     from nurbscan.reconstruct import load_model
@@ -94,10 +105,11 @@ def main(argv=None) -> int:
            "pose_b": spec_b.get("pose")}
     # each pass alone, in its own frame (the same true points moved into it)
     Ti = np.linalg.inv(T_true)
+    models = {}
     for key, folder, scene, P in (("pass_a", args.model_a, scene_a, P_a),
                                   ("pass_b", args.model_b, scene_b,
                                    P_a @ Ti[:3, :3].T + Ti[:3, 3])):
-        m = load_model(folder)
+        m = models[key] = load_model(folder)
         out[key] = surface_figures(m.fused, scene, P)
         print(f"{key}: {out[key]}", file=sys.stderr, flush=True)
     merged = load_model(args.merged)
@@ -111,6 +123,7 @@ def main(argv=None) -> int:
         "refined": motion_error(np.asarray(pb["refined_matrix"]), T_true, radius),
         "overlap": pb["overlap"], "rms_mm": pb["rms_mm"],
         "global_rms_mm": pb["global"]["rms_mm"], "ambiguous": pb["global"]["ambiguous"],
+        "rms_true_pose_mm": rms_true_pose(models["pass_b"], models["pass_a"], T_true),
         "object_radius_mm": radius, "warnings": rep["warnings"],
         "merge_s": rep.get("total_s")}
     text = json.dumps(out, indent=1)

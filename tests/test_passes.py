@@ -83,8 +83,16 @@ def test_sphere_alignment_is_ambiguous():
 def test_different_objects_do_not_align():
     A = posed(make_scene("teapot"), "upright")
     B = posed(make_scene("torus"), "side")
-    with pytest.raises(NurbscanError, match="does not align"):
-        align_surfaces(_seen(B, seed=2), _seen(A, seed=1), FAST)
+    with pytest.raises(NurbscanError, match="does not align") as exc:
+        align_surfaces(_seen(B, seed=2), _seen(A, seed=1), FAST, names=("torus", "teapot"))
+    msg = str(exc.value)
+    # one line with the best alignment found, in degrees and mm, and the failed limit
+    assert "\n" not in msg and msg.startswith("torus does not align with teapot: ")
+    assert "different objects" in msg and "nothing merged" in msg
+    rot = float(msg.split("rotation ")[1].split(" degrees")[0])
+    rms = msg.split("RMS ")[1].split(" mm")[0]
+    ov = float(msg.split("overlap ")[-1].split(" %")[0])
+    assert 0 <= rot <= 180 and (ov < 15.0 or float(rms) > 0.25), msg
 
 
 @pytest.fixture(scope="module")
@@ -111,6 +119,20 @@ def test_merge_passes_puts_both_passes_on_the_true_surface(teapot_passes):
     assert rep["passes"][1]["overlap"] > 0.25 and rep["passes"][1]["rms_mm"] < 0.05
     # the inputs are not changed
     assert np.allclose(mb.edge_points, _pass_model(B, 2).edge_points)
+    # each view's pose in the merged frame (for the colours): a point of A's frame goes to
+    # the rig where the true pose and pass B's turntable put it
+    from nurbscan.merge.passes import view_poses
+    from nurbscan.simulate.rig import default_rig
+
+    rig = default_rig()
+    poses = view_poses(merged, [rig, rig])
+    assert sorted(poses) == [0, 1, 100, 101]
+    X = A.sample_surface(500, seed=7)[0]
+    XB = X @ np.linalg.inv(true)[:3, :3].T + np.linalg.inv(true)[:3, 3]
+    for v, angle in ((0, 0.0), (101, 3.14)):
+        M = poses[v][1]
+        truth = rig.turntable.to_rig(X if v < 100 else XB, angle)
+        assert np.abs(X @ M[:3, :3].T + M[:3, 3] - truth).max() < 0.2
 
 
 def test_merge_cli_writes_a_model_folder_or_nothing(teapot_passes, tmp_path, capsys):
@@ -147,3 +169,64 @@ def test_report_view_table_takes_views_without_truth():
                     {"index": 100, "coverage": None, "gordon": 0.02}]}
     html = _views_html(model, ev)
     assert "50.0%" in html and html.count("<tr>") == 3
+
+
+def test_too_little_overlap_is_refused_with_the_alignment_found():
+    """Two passes of one teapot that share only a 3 mm band of its height (the lower part
+    upright, the upper part on its side): refused, the message names the cause and gives the
+    best alignment's rotation, translation, overlap and RMS."""
+    base = make_scene("teapot")
+    A, B = posed(base, "upright"), posed(base, "side")
+    PA, NA = _seen(A, seed=1)
+    PB, NB = _seen(B, seed=2)
+    zb = B._to_base(PB)[:, 2]  # heights in the upright (base) frame, as in A
+    H = PA[:, 2].max()
+    lo, hi = PA[:, 2] < 0.5 * H + 1.5, zb > 0.5 * H - 1.5
+    with pytest.raises(NurbscanError) as exc:
+        align_surfaces((PB[hi], NB[hi]), (PA[lo], NA[lo]), FAST, names=("B", "A"))
+    msg = str(exc.value)
+    assert "\n" not in msg and msg.startswith("B does not align with A: too little overlap")
+    for part in ("degrees", "mm, overlap", "% (at least 15 % needed)", "RMS", "nothing merged"):
+        assert part in msg, msg
+    ov = float(msg.split("overlap ")[-1].split(" %")[0])
+    assert ov < 15.0, msg
+
+
+def test_reconstruct_of_several_scans_checks_its_arguments(tmp_path, capsys):
+    """``nurbscan reconstruct SCAN_A SCAN_B``: a --calib count that fits neither one for all
+    nor one per scan, --no-fuse or --views are one-line errors, and nothing is written."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    out = tmp_path / "merged"
+    cases = [(["--calib", "c1.json", "c2.json", "c3.json"], "3 files for 2 scans"),
+             (["--calib", "c.json", "--no-fuse"], "--no-fuse"),
+             (["--calib", "c.json", "--views", "0"], "--views")]
+    for extra, expected in cases:
+        assert main(["reconstruct", str(a), str(b), "-o", str(out), "-q"] + extra) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and expected in err[0], err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_reconstruct_of_several_scans_reconstructs_each_then_merges(tmp_path, monkeypatch):
+    """The wiring of ``nurbscan reconstruct SCAN_A SCAN_B``: each scan into OUTPUT-passK with
+    its calibration, then ``merge`` of those folders into OUTPUT with the scans and
+    calibrations for the colours (the two stages themselves are tested on their own)."""
+    from pathlib import Path
+
+    from nurbscan.cli import merge as merge_cli
+    from nurbscan.cli import reconstruct as reconstruct_cli
+
+    calls, merged = [], {}
+    monkeypatch.setattr(reconstruct_cli, "_run_one",
+                        lambda a: calls.append((a.scan, a.calib, a.output)) or 0)
+    monkeypatch.setattr(merge_cli, "run", lambda a: merged.update(vars(a)) or 0)
+    out = tmp_path / "m"
+    assert main(["reconstruct", "sa", "sb", "--calib", "ca.json", "cb.json", "-o", str(out),
+                 "-q", "--max-triangles", "1000"]) == 0
+    passes = [tmp_path / "m-pass1", tmp_path / "m-pass2"]
+    assert calls == [(Path("sa"), Path("ca.json"), passes[0]),
+                     (Path("sb"), Path("cb.json"), passes[1])]
+    assert merged["models"] == passes and merged["output"] == out
+    assert merged["scan"] == [Path("sa"), Path("sb")]
+    assert merged["calib"] == [Path("ca.json"), Path("cb.json")]
+    assert merged["max_triangles"] == 1000 and merged["quiet"] and not merged["no_refine"]

@@ -44,6 +44,15 @@ def register(sub) -> None:
     p.add_argument("--max-triangles", type=int, default=300_000,
                    help="triangle budget of the fused mesh (300000)")
     p.add_argument("--no-fuse", action="store_true", help="no fused mesh of the merged model")
+    p.add_argument("--scan", type=Path, action="append", default=None, metavar="SCAN",
+                   help="a pass's scan folder, for the fused mesh's colours from its "
+                        "white-light images: once per model, in the same order (default: "
+                        "each model's recorded source, where it exists)")
+    p.add_argument("--calib", type=Path, action="append", default=None, metavar="CALIB",
+                   help="a pass's calibrated rig (calib.json), once per model or once for "
+                        "all (default: each model's recorded calibration, where it exists)")
+    p.add_argument("--no-colour", action="store_true",
+                   help="a grey fused mesh (do not read the passes' white images)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 
@@ -87,7 +96,9 @@ def run(args: argparse.Namespace) -> int:
                           max_misclosure=args.max_misclosure),
                       fusion=None if args.no_fuse else FusionOptions(
                           max_triangles=args.max_triangles))
-    merged, report = merge_passes(models, [str(m) for m in args.models], opt, progress=say)
+    colour = None if args.no_fuse or args.no_colour else pass_colours(args, models, say)
+    merged, report = merge_passes(models, [str(m) for m in args.models], opt, progress=say,
+                                  colour=colour)
     for m in models:
         m.meta.pop("_folder", None)
     merged.meta.pop("_folder", None)
@@ -109,6 +120,47 @@ def run(args: argparse.Namespace) -> int:
                               f", fused mesh of {len(merged.fused.faces)} triangles")
           + f", alignment in {out / 'alignment.json'}")
     return 0
+
+
+def pass_colours(args: argparse.Namespace, models: list, say) -> list:
+    """Per pass, ``(rig, {view: white image path})`` for the merged mesh's colours, or None
+    when its scan folder or calibration is not found (then said, not an error; given
+    explicitly with ``--scan``/``--calib`` and unreadable: an error)."""
+    from ..camera import load_rig
+    from ..errors import NurbscanError
+    from ..io import load_scan
+
+    n = len(models)
+    for opt, name in ((args.scan, "--scan"), (args.calib, "--calib")):
+        if opt is not None and len(opt) not in ((1, n) if name == "--calib" else (n,)):
+            raise NurbscanError(f"{name}: given {len(opt)} times for {n} models "
+                                + ("(once per model, or once for all)" if name == "--calib"
+                                   else "(once per model)"))
+    out = []
+    for k, (folder, m) in enumerate(zip(args.models, models, strict=True)):
+        scan = args.scan[k] if args.scan else _recorded(m.meta.get("source"), folder)
+        calib = (args.calib[k if len(args.calib) == n else 0] if args.calib
+                 else _recorded(m.meta.get("calibration"), folder))
+        if scan is None or calib is None:
+            say(f"colour: {folder}: its scan folder or calibration is not found; its views "
+                "do not colour the merged mesh (give --scan and --calib)")
+            out.append(None)
+            continue
+        rig = load_rig(calib)
+        views = load_scan(scan).views
+        out.append((rig, {int(v.index): v.white for v in views if v.white is not None}))
+    return out
+
+
+def _recorded(path, model_folder: Path):
+    """A path recorded in a model (relative to where it was made): as it stands, else
+    relative to the model folder's parent; None when neither exists."""
+    if not path:
+        return None
+    for cand in (Path(path), Path(model_folder).resolve().parent / path):
+        if cand.exists():
+            return cand
+    return None
 
 
 def _save_folder(model, report: dict, out: Path) -> None:

@@ -24,15 +24,21 @@ def register(sub) -> None:
             "triangle mesh (a rig whose turntable is not calibrated: one view, in the rig "
             "frame, not fused) and write the model folder (model.json, points.npz, "
             "model.png, fused.ply, overlays/view_KK_overlay.png with the detected lines of "
-            "each view; docs/model-format.md). Never reads truth/. Exit status: 0 every view "
-            "decoded; 2 bad input, nothing written (also when no view shows a grid); "
+            "each view; docs/model-format.md). Several scan folders of one object "
+            "(turntable passes, the object turned over between them): each reconstructed "
+            "into OUTPUT-passK, then merged into OUTPUT as 'nurbscan merge' does. Never "
+            "reads truth/. Exit status: 0 every view decoded; 2 bad input, nothing written "
+            "(also when no view shows a grid); "
             f"{PARTIAL} partial result: the model is written without the views in which no "
             "grid line was decoded, named in a warning on stderr."))
-    p.add_argument("scan", type=Path, help="scan folder (with scan.json)")
-    p.add_argument("--calib", type=Path, required=True,
-                   help="calibrated rig (calib.json from 'nurbscan calibrate')")
+    p.add_argument("scan", type=Path, nargs="+",
+                   help="scan folder (with scan.json); several: passes of one object")
+    p.add_argument("--calib", type=Path, required=True, nargs="+",
+                   help="calibrated rig (calib.json from 'nurbscan calibrate'); with several "
+                        "scans one for all or one per scan")
     p.add_argument("-o", "--output", type=Path, default=Path("model"),
-                   help="model folder (model/)")
+                   help="model folder (model/); with several scans the merged model, each "
+                        "pass's model beside it in OUTPUT-pass1, OUTPUT-pass2, ...")
     p.add_argument("--views", type=int, nargs="+", default=None,
                    help="only these view indices (default all)")
     p.add_argument("--min-curves", type=int, default=3,
@@ -61,7 +67,55 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Reconstruct ``args.scan`` with the rig ``args.calib`` into ``args.output``."""
+    """Reconstruct ``args.scan`` with the rig ``args.calib`` into ``args.output``; several
+    scans: each into its pass folder, then merged (:func:`run_passes`)."""
+    from ..errors import NurbscanError
+
+    scans, calibs = list(args.scan), list(args.calib)
+    if len(calibs) not in (1, len(scans)):
+        raise NurbscanError(f"--calib: {len(calibs)} files for {len(scans)} scans (one for "
+                            "all, or one per scan)")
+    if len(scans) > 1:
+        return run_passes(args, scans, calibs)
+    return _run_one(argparse.Namespace(**{**vars(args), "scan": scans[0],
+                                          "calib": calibs[0]}))
+
+
+def run_passes(args: argparse.Namespace, scans: list, calibs: list) -> int:
+    """Reconstruct every scan folder into ``OUTPUT-passK`` (K = 1, 2, ...), then merge the
+    passes into ``OUTPUT`` (:func:`nurbscan.cli.merge.run` with its default settings, the
+    colours from the scans' white images)."""
+    from ..errors import NurbscanError
+    from . import build_parser
+    from . import merge as merge_cli
+
+    if args.no_fuse:
+        raise NurbscanError("--no-fuse: several passes are aligned by their fused meshes")
+    if args.views is not None:
+        raise NurbscanError("--views: not with several scans (every pass needs its views)")
+    out = Path(args.output)
+    folders = [out.parent / f"{out.name}-pass{k + 1}" for k in range(len(scans))]
+    partial = False
+    for k, (scan, folder) in enumerate(zip(scans, folders, strict=True)):
+        calib = calibs[k if len(calibs) == len(scans) else 0]
+        if not args.quiet:
+            print(f"nurbscan reconstruct: pass {k + 1} of {len(scans)}: {scan} -> {folder}",
+                  file=sys.stderr, flush=True)
+        partial = _run_one(argparse.Namespace(**{**vars(args), "scan": scan, "calib": calib,
+                                                 "output": folder})) == PARTIAL or partial
+    argv = ["merge", *map(str, folders), "-o", str(out),
+            "--max-triangles", str(args.max_triangles)]
+    for k, scan in enumerate(scans):
+        argv += ["--scan", str(scan),
+                 "--calib", str(calibs[k if len(calibs) == len(scans) else 0])]
+    if args.quiet:
+        argv.append("-q")
+    rc = merge_cli.run(build_parser().parse_args(argv))
+    return PARTIAL if rc == 0 and partial else rc
+
+
+def _run_one(args: argparse.Namespace) -> int:
+    """One scan folder into one model folder."""
     from ..calibrate import turntable_calibrated
     from ..camera import load_rig
     from ..errors import NurbscanError

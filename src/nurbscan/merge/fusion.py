@@ -632,7 +632,8 @@ def _watertight(F: np.ndarray) -> bool:
     return bool(len(counts) and np.all(counts == 2))
 
 
-def _vertex_colours(V: np.ndarray, F: np.ndarray, model, rig, white) -> tuple[np.ndarray, str]:
+def _vertex_colours(V: np.ndarray, F: np.ndarray, model, rig, white,
+                    poses: Mapping[int, tuple] | None = None) -> tuple[np.ndarray, str]:
     """RGBA uint8 colours (N, 4) from the white-light images, and a note of their source.
 
     Each vertex is projected into every view (turntable to the rig frame, Tsai camera model)
@@ -640,6 +641,10 @@ def _vertex_colours(V: np.ndarray, F: np.ndarray, model, rig, white) -> tuple[np
     camera (``cos > 0.1``) and not occluded (the segment to the camera centre hits no triangle
     of the mesh, trimesh ray casting). Samples are averaged with weights ``cos^2``; vertices
     no view sees get the mean colour. The images are read one at a time.
+
+    ``poses`` (optional, ``{view: (rig, M)}``, ``M`` 4 x 4 with ``X_rig = M X``) gives a view
+    its own rig and pose instead of ``rig`` and the turntable at its table angle (the views of
+    several passes merged into one frame, :func:`nurbscan.merge.passes.merge_passes`).
     """
     import cv2
     import trimesh
@@ -648,28 +653,37 @@ def _vertex_colours(V: np.ndarray, F: np.ndarray, model, rig, white) -> tuple[np
 
     rgba = np.full((len(V), 4), 255, np.uint8)
     rgba[:, :3] = 180
-    if rig is None or not white:
+    if (rig is None and not poses) or not white:
         return rgba, "neutral (no rig or white images)"
     tm = trimesh.Trimesh(V, F, process=False)
     N = _vertex_normals(V, F)
     angles = {int(v["index"]): float(v["table_angle"]) for v in model.views}
-    C = np.asarray(rig.camera.center, float)[None]
     acc, wsum = np.zeros((len(V), 3)), np.zeros(len(V))
     eps = 1e-3 * float(np.ptp(V, axis=0).max())
     used = 0
     for k, path in white.items():
         if k not in angles or path is None or not Path(path).is_file():
             continue
+        if poses is not None and k not in poses:
+            continue
+        rig_k = rig if poses is None else poses[k][0]
+        C = np.asarray(rig_k.camera.center, float)
         img = read_image(path)
         h, w = img.shape[:2]
-        if (w, h) != (rig.camera.width, rig.camera.height):
+        if (w, h) != (rig_k.camera.width, rig_k.camera.height):
             raise NurbscanError(f"{path}: white image of view {k} is {w} x {h} px, but the "
-                                f"camera is {rig.camera.width} x {rig.camera.height}")
-        a = angles[k]
-        d = rig.turntable.from_rig(C, a)[0][None] - V
+                                f"camera is {rig_k.camera.width} x {rig_k.camera.height}")
+        if poses is None:
+            a = angles[k]
+            d = rig_k.turntable.from_rig(C[None], a)[0][None] - V
+            X_rig = rig_k.turntable.to_rig(V, a)
+        else:
+            M = np.asarray(poses[k][1], float)
+            d = (np.linalg.solve(M[:3, :3], C - M[:3, 3]))[None] - V
+            X_rig = V @ M[:3, :3].T + M[:3, 3]
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         cos = np.einsum("ij,ij->i", N, d)
-        px, valid = rig.camera.project(rig.turntable.to_rig(V, a), return_valid=True)
+        px, valid = rig_k.camera.project(X_rig, return_valid=True)
         ok = valid & (cos > 0.1) & (px[:, 0] >= 0) & (px[:, 0] <= w - 1) \
             & (px[:, 1] >= 0) & (px[:, 1] <= h - 1)
         idx = np.flatnonzero(ok)

@@ -232,16 +232,30 @@ def align_surfaces(source: tuple, target: tuple, options: GlobalOptions | None =
             f"away overlaps {100 * scored[1]['overlap']:.1f} % against "
             f"{100 * best['overlap']:.1f} % (a symmetric object?)")
     if best["overlap"] < opt.min_overlap or not best["rms_mm"] <= opt.max_rms:
-        raise NurbscanError(
-            f"{names[0]} does not align with {names[1]}: best overlap "
-            f"{100 * best['overlap']:.1f} % (at least {100 * opt.min_overlap:.0f} % needed), "
-            f"RMS {best['rms_mm']:.3f} mm (at most {opt.max_rms:g}): scans of different "
-            "objects, or too little overlap")
+        raise NurbscanError(_refusal(best, opt, names))
     if best["overlap"] < 2 * opt.min_overlap:
         warnings.append(f"the overlap of {names[0]} and {names[1]} is small "
                         f"({100 * best['overlap']:.1f} %): the alignment may be unreliable")
     return Alignment(best["matrix"], best["rms_mm"], best["overlap"], best["overlap_source"],
                      best["overlap_target"], scored[:5], ambiguous, warnings)
+
+
+def _refusal(best: dict, opt: GlobalOptions, names: tuple[str, str]) -> str:
+    """The one-line error of an alignment that is refused: the best candidate's motion
+    (degrees, mm), its overlap and RMS against the limits, and which limit failed (too
+    little overlap: too few common parts or another object; too large an RMS with enough
+    overlap: another object or a surface that does not match)."""
+    rv = Rotation.from_matrix(np.asarray(best["matrix"])[:3, :3]).as_rotvec()
+    low = best["overlap"] < opt.min_overlap
+    rms = best["rms_mm"]
+    why = ("too little overlap (scans of different objects, or passes that share too little "
+           "of the surface)" if low else
+           "the overlap does not match (scans of different objects?)")
+    return (f"{names[0]} does not align with {names[1]}: {why}; best alignment found: "
+            f"rotation {np.degrees(np.linalg.norm(rv)):.2f} degrees, translation "
+            f"{np.linalg.norm(np.asarray(best['matrix'])[:3, 3]):.2f} mm, overlap "
+            f"{100 * best['overlap']:.1f} % (at least {100 * opt.min_overlap:.0f} % needed), "
+            f"RMS {rms:.3f} mm over it (at most {opt.max_rms:g} mm); nothing merged")
 
 
 # ---------------------------------------------------------------------------- steps

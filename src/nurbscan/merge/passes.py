@@ -18,7 +18,9 @@ the first pass's frame and builds one model of the whole object:
 4. **Joint refinement** of all views of all passes (:func:`nurbscan.merge.register.register_views`:
    pairwise point-to-plane ICP over the overlaps, a pose graph; the first view of the first
    pass fixes the frame), each view moved by its correction.
-5. **Fusion** of all views into one mesh (:func:`nurbscan.merge.fusion.fuse_model`).
+5. **Fusion** of all views into one mesh (:func:`nurbscan.merge.fusion.fuse_model`),
+   coloured from every pass's white-light images when they are given (each view projected
+   with its own pass's rig and its pose in the merged frame, :func:`view_poses`).
 
 The alignment is reported per pass: the transform (global and after the joint refinement, the
 pass's views' mean correction), the RMS distance over the overlap (the pass's surface samples
@@ -38,7 +40,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import NurbscanError
-from .frame import moved_curve, moved_points, moved_surface
+from .frame import moved_curve, moved_points, moved_surface, object_transform
 from .global_registration import (
     Alignment,
     GlobalOptions,
@@ -48,7 +50,7 @@ from .global_registration import (
 from .register import RegistrationOptions, register_views
 from .views import move_view
 
-__all__ = ["PassOptions", "merge_passes", "pass_surface", "VIEW_OFFSET"]
+__all__ = ["PassOptions", "merge_passes", "pass_surface", "view_poses", "VIEW_OFFSET"]
 
 #: View ``v`` of pass ``k`` is view ``VIEW_OFFSET * k + v`` of the merged model.
 VIEW_OFFSET = 100
@@ -112,7 +114,8 @@ def pass_surface(model, options: PassOptions | None = None, seed: int = 0):
 
 def merge_passes(models: Sequence, names: Sequence[str] | None = None,
                  options: PassOptions | None = None,
-                 progress: Callable[[str], None] | None = None):
+                 progress: Callable[[str], None] | None = None,
+                 colour: Sequence | None = None):
     """Merge turntable passes of one object into one model in the first pass's frame.
 
     Parameters
@@ -124,6 +127,10 @@ def merge_passes(models: Sequence, names: Sequence[str] | None = None,
     options : PassOptions, optional
     progress : callable, optional
         Called with one line per step.
+    colour : sequence of (Rig, {view index: path}), optional
+        Per pass, its calibrated rig and its views' white-light images (the pass's own view
+        indices), for the fused mesh's colours; None (or a pass's entry None): grey, or
+        the passes that have them.
 
     Returns
     -------
@@ -215,6 +222,8 @@ def merge_passes(models: Sequence, names: Sequence[str] | None = None,
 
         merged.fused = fuse_model(merged, None, None, opt.fusion, progress=say)
         merged.fused.info["colour"] = "neutral (merged passes)"
+        if colour is not None and any(c is not None for c in colour):
+            merged.fused = _coloured(merged, colour, say)
     for w in warnings:
         say(f"merge: warning: {w}")
     report["total_s"] = round(time.perf_counter() - t0, 3)
@@ -309,3 +318,52 @@ def _refined_transforms(model, transforms: Sequence[np.ndarray], corrections: di
         by_pass.setdefault(int(e["pass"]), []).append(C @ transforms[int(e["pass"])])
     ref = np.linalg.inv(_mean_motion(by_pass.get(0, [np.eye(4)])))
     return [ref @ _mean_motion(by_pass.get(k, [transforms[k]])) for k in range(len(transforms))]
+
+
+def view_poses(model, rigs: Sequence) -> dict:
+    """Per view of a merged model, its pass's rig and its pose in the merged frame:
+    ``{view: (rig, M)}`` with ``X_rig = M X_merged`` (4 x 4).
+
+    A view's pose is ``(C_v T_k P_v)^-1``: ``P_v`` its pose in its pass's frame (the pass's
+    registered ``object_from_rig`` where its reconstruction recorded one, else the calibrated
+    turntable at its table angle), ``T_k`` the pass's transform (``pass_transform``) and
+    ``C_v`` the joint refinement's correction (``joint_registration``; identity without).
+    Views of passes whose rig is None are left out.
+    """
+    out = {}
+    for e in model.views:
+        rig = rigs[int(e.get("pass", 0))]
+        if rig is None:
+            continue
+        P = np.eye(4)
+        if "object_from_rig" in e:
+            P[:3, :3] = np.asarray(e["object_from_rig"]["R"], float)
+            P[:3, 3] = np.asarray(e["object_from_rig"]["t"], float)
+        else:
+            M, t = object_transform(rig.turntable, float(e["table_angle"]))
+            P[:3, :3], P[:3, 3] = M.T, -M.T @ t
+        T = np.asarray(e.get("pass_transform", np.eye(4)), float)
+        C = np.asarray(e.get("joint_registration", {}).get("matrix", np.eye(4)), float)
+        out[int(e["index"])] = (rig, np.linalg.inv(C @ T @ P))
+    return out
+
+
+def _coloured(model, colour: Sequence, say):
+    """The merged fused mesh with vertex colours from every pass's white images
+    (:func:`nurbscan.merge.fusion._vertex_colours` with the views' poses, :func:`view_poses`)."""
+    from .fusion import FusedMesh, _vertex_colours
+
+    rigs = [None if c is None else c[0] for c in colour]
+    white = {}
+    for e in model.views:
+        c = colour[int(e.get("pass", 0))]
+        if c is not None and int(e["pass_view"]) in c[1]:
+            white[int(e["index"])] = c[1][int(e["pass_view"])]
+    t0 = time.perf_counter()
+    fm = model.fused
+    rgba, source = _vertex_colours(fm.vertices, fm.faces, model, None, white,
+                                   view_poses(model, rigs))
+    info = {**fm.info, "colour": f"{source} of {sum(r is not None for r in rigs)} passes",
+            "colour_s": round(time.perf_counter() - t0, 3)}
+    say(f"merge: fused mesh coloured from the {source} ({info['colour_s']:.1f} s)")
+    return FusedMesh(fm.vertices, fm.faces, rgba, info)
