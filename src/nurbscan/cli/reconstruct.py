@@ -65,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
     from ..calibrate import turntable_calibrated
     from ..camera import load_rig
     from ..errors import NurbscanError
+    from ..io import load_scan
     from ..io.atomic import atomic_folder, read_json
     from ..merge import MergeOptions, MergeWarning, RegistrationOptions, TableOptions
     from ..merge.fusion import FusionOptions
@@ -83,6 +84,12 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     rig = load_rig(args.calib)
     tt_ok = turntable_calibrated(read_json(args.calib))
+    scan = load_scan(args.scan, allow_outside=args.allow_outside_paths)
+    cam = (int(rig.camera.width), int(rig.camera.height))
+    if scan.image_size != cam:  # named by both files here (the library knows the rig only)
+        raise NurbscanError(f"{args.calib}: camera {cam[0]} x {cam[1]} px does not match the "
+                            f"images of {scan.folder / 'scan.json'} ({scan.image_size[0]} x "
+                            f"{scan.image_size[1]})")
 
     def say(msg: str) -> None:
         if not args.quiet:
