@@ -76,6 +76,8 @@ def run(args: argparse.Namespace) -> int:
         raise NurbscanError(f"--workers {args.workers}: must be >= 0")
     if args.min_curves < 2:
         raise NurbscanError(f"--min-curves {args.min_curves}: must be at least 2")
+    if args.max_triangles < 100:  # as export's
+        raise NurbscanError(f"--max-triangles {args.max_triangles}: must be at least 100")
     merge = MergeOptions(
         table=None if args.keep_table else TableOptions(margin=args.table_margin,
                                                         radius=args.table_radius),
@@ -90,6 +92,11 @@ def run(args: argparse.Namespace) -> int:
         raise NurbscanError(f"{args.calib}: camera {cam[0]} x {cam[1]} px does not match the "
                             f"images of {scan.folder / 'scan.json'} ({scan.image_size[0]} x "
                             f"{scan.image_size[1]})")
+    unknown = sorted(set(args.views or ()) - {v.index for v in scan.views})
+    if unknown:
+        raise NurbscanError(f"--views {' '.join(map(str, unknown))}: no such view in "
+                            f"{scan.folder / 'scan.json'} (views "
+                            f"{', '.join(str(v.index) for v in scan.views)})")
 
     def say(msg: str) -> None:
         if not args.quiet:
