@@ -69,6 +69,9 @@ def run(args: argparse.Namespace) -> int:
             and not (fmt == "step" and suffix == "stp"):
         raise NurbscanError(f"{args.output}: the name says {suffix or 'no format'!r} but "
                             f"--format is {fmt!r}; name the file .{fmt}")
+    if args.points and fmt != "ply":
+        raise NurbscanError(f"--points: the point cloud is written as ply only, not {fmt!r} "
+                            f"({args.output})")
     if args.per_span < 1:
         raise NurbscanError(f"--per-span {args.per_span}: must be at least 1")
     if args.max_triangles < 100:
@@ -86,6 +89,10 @@ def run(args: argparse.Namespace) -> int:
                      what="--per-span")
     kinds = ALL_KINDS if args.kinds == "all" else tuple(
         k.strip() for k in args.kinds.split(",") if k.strip())
+    unknown = [k for k in kinds if k not in ALL_KINDS]
+    if unknown or not kinds:
+        raise NurbscanError(f"--kinds {args.kinds}: {', '.join(unknown) or 'none given'}; "
+                            f"expected 'all' or of {', '.join(ALL_KINDS)}")
     t0 = time.perf_counter()
 
     def say(msg: str) -> None:

@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -164,31 +162,14 @@ def _recorded(path, model_folder: Path):
 
 
 def _save_folder(model, report: dict, out: Path) -> None:
-    """Write the model and ``alignment.json`` into a temporary folder beside ``out`` and
-    rename it to ``out`` (an existing ``out`` is replaced only once the new one is
-    complete)."""
-    from ..errors import NurbscanError
-    from ..io import write_json
+    """Write the model and ``alignment.json`` as one folder (:func:`nurbscan.io.atomic_folder`:
+    under a temporary name, renamed into place, under the folder's lock; an existing ``out``
+    is replaced only once the new one is complete, a file or a folder of other files is
+    refused)."""
+    from ..io import atomic_folder, write_json
+    from ..reconstruct.model import MODEL_FILES
 
-    out = Path(out)
-    parent = out.resolve().parent
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=parent))
-    except OSError as exc:
-        raise NurbscanError(f"{out}: cannot write ({exc.strerror})") from None
-    try:
-        model.save(tmp)
+    with atomic_folder(out, MODEL_FILES | {"alignment.json"}) as tmp:
+        model.write_files(tmp)
         write_json(tmp / "alignment.json", {"type": "nurbscan.alignment", "version": 1,
                                             **report})
-        old = None
-        if out.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old.", dir=parent))
-            old.rmdir()
-            out.rename(old)
-        tmp.rename(out)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise

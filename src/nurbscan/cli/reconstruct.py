@@ -119,6 +119,7 @@ def _run_one(args: argparse.Namespace) -> int:
     from ..calibrate import turntable_calibrated
     from ..camera import load_rig
     from ..errors import NurbscanError
+    from ..io import load_scan
     from ..io.atomic import atomic_folder, read_json
     from ..merge import MergeOptions, MergeWarning, RegistrationOptions, TableOptions
     from ..merge.fusion import FusionOptions
@@ -129,6 +130,8 @@ def _run_one(args: argparse.Namespace) -> int:
         raise NurbscanError(f"--workers {args.workers}: must be >= 0")
     if args.min_curves < 2:
         raise NurbscanError(f"--min-curves {args.min_curves}: must be at least 2")
+    if args.max_triangles < 100:  # as export's
+        raise NurbscanError(f"--max-triangles {args.max_triangles}: must be at least 100")
     merge = MergeOptions(
         table=None if args.keep_table else TableOptions(margin=args.table_margin,
                                                         radius=args.table_radius),
@@ -137,6 +140,17 @@ def _run_one(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     rig = load_rig(args.calib)
     tt_ok = turntable_calibrated(read_json(args.calib))
+    scan = load_scan(args.scan, allow_outside=args.allow_outside_paths)
+    cam = (int(rig.camera.width), int(rig.camera.height))
+    if scan.image_size != cam:  # named by both files here (the library knows the rig only)
+        raise NurbscanError(f"{args.calib}: camera {cam[0]} x {cam[1]} px does not match the "
+                            f"images of {scan.folder / 'scan.json'} ({scan.image_size[0]} x "
+                            f"{scan.image_size[1]})")
+    unknown = sorted(set(args.views or ()) - {v.index for v in scan.views})
+    if unknown:
+        raise NurbscanError(f"--views {' '.join(map(str, unknown))}: no such view in "
+                            f"{scan.folder / 'scan.json'} (views "
+                            f"{', '.join(str(v.index) for v in scan.views)})")
 
     def say(msg: str) -> None:
         if not args.quiet:

@@ -150,6 +150,13 @@ class Model:
                 raise NurbscanError(f"{source}: unknown surface kind {s.get('kind')!r}")
         m = cls(curves=curves, surfaces=surfaces, views=list(d.get("views", [])),
                 meta=dict(d.get("meta", {})))
+        if "counts" in d:  # written by to_dict from the content: a mismatch is damage
+            counts = {k: len(m.curves_of(k)) for k in CURVE_KINDS}
+            counts.update({k: len(m.surfaces_of(k)) for k in SURFACE_KINDS})
+            if not isinstance(d["counts"], Mapping) or any(
+                    d["counts"].get(k, v) != v for k, v in counts.items()):
+                raise NurbscanError(f"{source}: counts {d['counts']!r} do not match the curves "
+                                    "and surfaces it holds")
         if isinstance(d.get("fused"), Mapping):
             m.meta["_fused"] = dict(d["fused"])
         return m

@@ -290,8 +290,9 @@ def plan_scan(scan_dir: str | os.PathLike, rig, *, views: list[int] | None = Non
     pattern = load_pattern(scan.pattern_sidecar)
     size = scan.image_size
     if size != (int(rig.camera.width), int(rig.camera.height)):
-        raise NurbscanError(f"calibration: camera size {rig.camera.width} x {rig.camera.height} "
-                            f"does not match the scan's images {size[0]} x {size[1]}")
+        raise NurbscanError(f"{scan.folder / 'scan.json'}: images {size[0]} x {size[1]} do not "
+                            f"match the calibration's camera {rig.camera.width} x "
+                            f"{rig.camera.height}")
     meta = {"source": str(scan_dir), "pattern": pattern.summary()
             if hasattr(pattern, "summary") else None}
     tasks = []
@@ -329,6 +330,11 @@ def run_view(task: ViewTask) -> ViewOutput:
     # 1.5 s instead of 2.4-2.8 s from float32 input, the same lines)
     grid = read_image(task.grid, as_float=False)
     white = read_image(task.white, as_float=False) if task.white is not None else None
+    size = (int(task.rig.camera.width), int(task.rig.camera.height))
+    for path, img in ((task.grid, grid), (task.white, white)):
+        if img is not None and (img.shape[1], img.shape[0]) != size:
+            raise NurbscanError(f"{path}: {img.shape[1]} x {img.shape[0]} px, not the "
+                                f"{size[0]} x {size[1]} of the scan's camera")
     t1 = time.perf_counter()
     stages: dict = {}
     if isinstance(task.pattern, LinePattern):  # thin lines: centre-lines (edge 2)

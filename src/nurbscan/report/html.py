@@ -264,8 +264,14 @@ def build_report(model_dir: str | os.PathLike, overlays=None, evaluation=None,
                      "see the accuracy table.")
     ev = None
     ev_path = Path(evaluation) if evaluation is not None else folder / "evaluation.json"
-    if ev_path.is_file():
+    if evaluation is not None or ev_path.is_file():  # one asked for must be read
         ev = read_json(ev_path)
+        if (not isinstance(ev, dict) or ev.get("type") != "nurbscan.evaluation"
+                or not isinstance(ev.get("rows", {}), dict)
+                or not isinstance(ev.get("views", []), list)
+                or not isinstance(ev.get("fused", {}), dict | type(None))):
+            raise NurbscanError(f"{ev_path}: not a nurbscan evaluation (nurbscan evaluate's "
+                                "evaluation.json)")
     if overlays is None:
         overlays = find_overlays(folder, scan)
     ov = []
