@@ -98,7 +98,7 @@ def test_local_cluster_same_model_failures_reported_and_resumable(scans, referen
     args = ["batch", *(str(scans[k]) for k in ("alpha", "blind", "badview", "broken")),
             "-o", str(out), "--calib", str(scans["calib"]), "--workers", "2",
             "--export", "glb"]
-    assert main(args) == 1
+    assert main(args) == 3  # partial result: the failures reported, the others written
     cap = capsys.readouterr()
     assert "dashboard http://" in cap.err
     assert sum("scan " in ln and "/4 " in ln for ln in cap.err.splitlines()) == 4, cap.err
@@ -125,7 +125,7 @@ def test_local_cluster_same_model_failures_reported_and_resumable(scans, referen
     assert not [p.name for p in out.iterdir() if p.name.startswith(".")]  # no staging left
     # re-run: the complete scans are skipped, the others retried
     before = (out / "alpha" / "batch.json").stat().st_mtime_ns
-    assert main(args) == 1
+    assert main(args) == 3
     again = {r["name"]: r["status"] for r in json.loads((out / "batch.json").read_text())
              ["scans"]}
     assert again == {"alpha": "skipped", "blind": "skipped", "badview": "partial",
@@ -232,10 +232,13 @@ def test_input_errors_are_one_line(scans, tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "pip install 'nurbscan[batch]'" in err[0], err
     assert not (out / "alpha").exists()
-    # without --calib, a scan with neither calib.json nor calibration/ fails, reported (serial)
-    assert main(["batch", "-o", str(out), str(scans["blind"]), "--serial", "-q"]) == 1
+    # without --calib, a scan with neither calib.json nor calibration/ fails, reported (serial);
+    # no scan complete: exit 2, its error in the one error line
+    assert main(["batch", "-o", str(out), str(scans["blind"]), "--serial", "-q"]) == 2
     cap = capsys.readouterr()
     assert "blind: failed: calibration:" in cap.err and "no calib.json" in cap.err, cap.err
+    last = [ln for ln in cap.err.splitlines() if "error:" in ln]
+    assert len(last) == 1 and "no scan complete: blind: calibration:" in last[0], cap.err
 
 
 def test_batch_calibrates_a_scan_from_its_images(tmp_path, capsys):

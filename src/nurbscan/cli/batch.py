@@ -7,6 +7,9 @@ import sys
 import time
 from pathlib import Path
 
+from ..errors import NurbscanError
+from .reconstruct import PARTIAL
+
 
 def register(sub) -> None:
     """Add the ``batch`` sub-command."""
@@ -21,9 +24,10 @@ def register(sub) -> None:
             "output folders at the same paths: docs/scaling.md). Writes OUT/NAME/ per scan\n"
             "(model/, model.glb, model.3dm, evaluation.json, batch.json), renamed into place\n"
             "when complete, and OUT/batch.json. A re-run skips the complete scans.\n\n"
-            "Exit status: 0 every scan complete; 1 some scan or view failed (each one is\n"
-            "reported with its error; the others are written); 2 bad input (no such folder,\n"
-            "unknown format, no Dask, no scheduler at the address)."))
+            "Exit status: 0 every scan complete; 3 partial result: some scan or view failed\n"
+            "(each one reported with its error, the others written, as reconstruct's 3);\n"
+            "2 bad input (no such folder, unknown format, no Dask, no scheduler at the\n"
+            "address) or no scan complete (each failure reported; OUT/batch.json says why)."))
     p.add_argument("scans", type=Path, nargs="+", metavar="SCAN_DIR",
                    help="scan folders (with scan.json)")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="OUT",
@@ -51,7 +55,8 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the batch; 0 if every scan is complete, 1 if any failed."""
+    """Run the batch; 0 if every scan is complete, 3 (partial) if some failed, 2 if none is
+    complete."""
     from ..batch import BatchOptions, main_report, run_batch
 
     exports = () if args.export.strip() == "none" else tuple(
@@ -74,4 +79,12 @@ def run(args: argparse.Namespace) -> int:
                 print(f"nurbscan batch: {rep['name']}: {rep['status']}: "
                       f"{'; '.join(rep['errors'])}", file=sys.stderr)
     print(main_report(summary, args.output))
-    return 0 if summary["failed"] + summary["partial"] == 0 else 1
+    if summary["failed"] + summary["partial"] == 0:
+        return 0
+    if summary["ok"] + summary["skipped"] + summary["partial"] == 0:
+        first = next(r for r in summary["scans"] if r["status"] == "failed")
+        raise NurbscanError(f"no scan complete: {first['name']}: {'; '.join(first['errors'])}"
+                            + (f" (and {summary['failed'] - 1} more failed scans, in "
+                               f"{Path(args.output) / 'batch.json'})"
+                               if summary["failed"] > 1 else ""))
+    return PARTIAL
