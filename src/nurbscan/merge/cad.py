@@ -25,12 +25,16 @@ coincide, only the best patch, and cuts every patch back to its measured data:
    ``consistent_mm`` along its normal disagrees with every other view that saw the place: it
    is cut, and ownership is settled again without it, so that another view's cell takes its
    place. Repeated ``consistency_rounds`` times (the replacing cell is checked in turn).
-6. **Rectangles.** Each patch's kept cells are merged into maximal rectangles (runs of rows
-   with the same kept columns), and each rectangle becomes the exact sub-surface of the
-   Gordon surface over it (knots inserted to multiplicity ``p`` at its ends, Piegl and
-   Tiller A5.1 per row): no refit, the geometry is the patch's.
+6. **Rectangles.** Each patch's kept cells lose one cell at every pinch corner
+   (:func:`unpinched`) and are merged into maximal rectangles (runs of rows with the same
+   kept columns), and each rectangle becomes the exact sub-surface of the Gordon surface over
+   it (knots inserted to multiplicity ``p`` at its ends, Piegl and Tiller A5.1 per row): no
+   refit, the geometry is the patch's (``CadSet.surfaces``, for 3dm and IGES). The kept
+   cells themselves are ``CadSet.patches``: :mod:`nurbscan.export.step` makes one trimmed
+   face per region of them (its :func:`outline` as the trimming wires) and sews the faces
+   into shells (OpenCASCADE) at :func:`cad_sewing_tolerance`.
 
-Units: mm, object frame. :mod:`nurbscan.export.step` sews the set into shells (OpenCASCADE).
+Units: mm, object frame.
 """
 
 from __future__ import annotations
