@@ -32,7 +32,7 @@ coincide, only the best patch, and cuts every patch back to its measured data:
    refit, the geometry is the patch's (``CadSet.surfaces``, for 3dm and IGES). The kept
    cells themselves are ``CadSet.patches``: :mod:`nurbscan.export.step` makes one trimmed
    face per region of them (its :func:`outline` as the trimming wires) and sews the faces
-   into shells (OpenCASCADE) at :func:`cad_sewing_tolerance`.
+   into shells (OpenCASCADE).
 
 Units: mm, object frame.
 """
@@ -48,8 +48,8 @@ from ..errors import NurbscanError
 from ..nurbs import NurbsSurface
 from ..nurbs.curve import insert_knot_h
 
-__all__ = ["CadOptions", "CadSet", "cad_set", "cad_sewing_tolerance", "outline", "overlap_area",
-           "sub_surface", "unpinched"]
+__all__ = ["CadOptions", "CadSet", "cad_set", "outline", "overlap_area", "sub_surface",
+           "unpinched"]
 
 
 @dataclass(frozen=True)
@@ -192,19 +192,6 @@ def cad_set(model, rig=None, options: CadOptions | None = None, progress=None) -
         f"cells past the data cut, {info['cells_covered']} under a better view's patch, "
         f"{info['cells_inconsistent']} off the other views' cells")
     return CadSet(out, info, kept)
-
-
-def cad_sewing_tolerance(cad: CadSet, shared: float = 0.05) -> float:
-    """Sewing tolerance (mm) of a CAD set's trimmed faces: ``cell_mm + shared``.
-
-    Two regions of kept cells (of two patches or two views) meet at a staircase seam whose
-    sides lie up to a cell apart along the surface (a cell is dropped when a better one lies
-    within ``cover_mm < cell_mm``) and less than ``consistent_mm`` apart along the normal;
-    ``shared`` is the tolerance of borders the patches share exactly. On the 1024 x 768
-    teapot (1050 trimmed faces): 0.05 mm sews 68 shells and leaves 689 faces loose, 0.2 mm
-    4 shells and 50, 0.35 mm 3 shells and 13, 0.5 mm 3 and 12.
-    """
-    return float(cad.info.get("options", {}).get("cell_mm", CadOptions().cell_mm)) + shared
 
 
 # ---------------------------------------------------------------------------- steps
