@@ -194,7 +194,7 @@ def export_model(model, path: str | os.PathLike, fmt: str | None = None,
         if patches:
             curves, surfaces = select(model, kinds)
         else:
-            from ..merge.cad import cad_set, cad_sewing_tolerance
+            from ..merge.cad import cad_set
 
             if fmt == "step":
                 from .step import _ocp
@@ -204,8 +204,7 @@ def export_model(model, path: str | os.PathLike, fmt: str | None = None,
             if fmt == "step":  # one trimmed face per region of a Gordon patch's kept cells
                 from .step import write_step
 
-                return write_step(path, trimmed=cad.patches, progress=progress,
-                                  tolerance=cad_sewing_tolerance(cad))
+                return write_step(path, trimmed=cad.patches, progress=progress)
             curves, surfaces = [], [(f"cad view {d['view']}", d["surface"])
                                     for d in cad.surfaces]
         if fmt == "3dm":

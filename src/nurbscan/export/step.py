@@ -90,6 +90,7 @@ def trimmed_faces(s: NurbsSurface, u: np.ndarray, v: np.ndarray, keep: np.ndarra
     between shared vertices; the 3-D curves are computed from the pcurves
     (``BRepLib::BuildCurves3d``), and ``ShapeFix_Face`` settles the wires' orientation.
     """
+    from OCP.BRep import BRep_Builder
     from OCP.BRepBuilderAPI import (
         BRepBuilderAPI_MakeEdge,
         BRepBuilderAPI_MakeFace,
@@ -110,6 +111,11 @@ def trimmed_faces(s: NurbsSurface, u: np.ndarray, v: np.ndarray, keep: np.ndarra
         uv = np.column_stack([u[loop[:, 0]], v[loop[:, 1]]])
         X = s.evaluate(uv[:, 0], uv[:, 1])
         verts = [BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, x))).Vertex() for x in X]
+        same = np.linalg.norm(X - np.roll(X, -1, axis=0), axis=1) < 1e-9
+        for k in np.flatnonzero(same[:-1]):  # a pole: one vertex for a degenerate side
+            verts[k + 1] = verts[k]
+        if same[-1]:
+            verts[0] = verts[-1]
         mw = BRepBuilderAPI_MakeWire()
         for k in range(len(uv)):
             a, b = uv[k], uv[(k + 1) % len(uv)]
@@ -121,7 +127,10 @@ def trimmed_faces(s: NurbsSurface, u: np.ndarray, v: np.ndarray, keep: np.ndarra
                                         length)
             if not e.IsDone():
                 raise NurbscanError("STEP export: OpenCASCADE could not make a trimming edge")
-            mw.Add(e.Edge())
+            edge = e.Edge()
+            if same[k]:
+                BRep_Builder().Degenerated(edge, True)
+            mw.Add(edge)
         if not mw.IsDone():
             raise NurbscanError("STEP export: OpenCASCADE could not make a trimming wire")
         return mw.Wire()

@@ -25,12 +25,16 @@ coincide, only the best patch, and cuts every patch back to its measured data:
    ``consistent_mm`` along its normal disagrees with every other view that saw the place: it
    is cut, and ownership is settled again without it, so that another view's cell takes its
    place. Repeated ``consistency_rounds`` times (the replacing cell is checked in turn).
-6. **Rectangles.** Each patch's kept cells are merged into maximal rectangles (runs of rows
-   with the same kept columns), and each rectangle becomes the exact sub-surface of the
-   Gordon surface over it (knots inserted to multiplicity ``p`` at its ends, Piegl and
-   Tiller A5.1 per row): no refit, the geometry is the patch's.
+6. **Rectangles.** Each patch's kept cells lose one cell at every pinch corner
+   (:func:`unpinched`) and are merged into maximal rectangles (runs of rows with the same
+   kept columns), and each rectangle becomes the exact sub-surface of the Gordon surface over
+   it (knots inserted to multiplicity ``p`` at its ends, Piegl and Tiller A5.1 per row): no
+   refit, the geometry is the patch's (``CadSet.surfaces``, for 3dm and IGES). The kept
+   cells themselves are ``CadSet.patches``: :mod:`nurbscan.export.step` makes one trimmed
+   face per region of them (its :func:`outline` as the trimming wires) and sews the faces
+   into shells (OpenCASCADE).
 
-Units: mm, object frame. :mod:`nurbscan.export.step` sews the set into shells (OpenCASCADE).
+Units: mm, object frame.
 """
 
 from __future__ import annotations
@@ -44,8 +48,8 @@ from ..errors import NurbscanError
 from ..nurbs import NurbsSurface
 from ..nurbs.curve import insert_knot_h
 
-__all__ = ["CadOptions", "CadSet", "cad_set", "cad_sewing_tolerance", "outline", "overlap_area",
-           "sub_surface", "unpinched"]
+__all__ = ["CadOptions", "CadSet", "cad_set", "outline", "overlap_area", "sub_surface",
+           "unpinched"]
 
 
 @dataclass(frozen=True)
@@ -188,19 +192,6 @@ def cad_set(model, rig=None, options: CadOptions | None = None, progress=None) -
         f"cells past the data cut, {info['cells_covered']} under a better view's patch, "
         f"{info['cells_inconsistent']} off the other views' cells")
     return CadSet(out, info, kept)
-
-
-def cad_sewing_tolerance(cad: CadSet, shared: float = 0.05) -> float:
-    """Sewing tolerance (mm) of a CAD set's trimmed faces: ``cell_mm + shared``.
-
-    Two regions of kept cells (of two patches or two views) meet at a staircase seam whose
-    sides lie up to a cell apart along the surface (a cell is dropped when a better one lies
-    within ``cover_mm < cell_mm``) and less than ``consistent_mm`` apart along the normal;
-    ``shared`` is the tolerance of borders the patches share exactly. On the 1024 x 768
-    teapot (1050 trimmed faces): 0.05 mm sews 68 shells and leaves 689 faces loose, 0.2 mm
-    4 shells and 50, 0.35 mm 3 shells and 13, 0.5 mm 3 and 12.
-    """
-    return float(cad.info.get("options", {}).get("cell_mm", CadOptions().cell_mm)) + shared
 
 
 # ---------------------------------------------------------------------------- steps
