@@ -52,19 +52,11 @@ def _cli(argv: list[str]) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..errors import NurbscanError
     from . import main as cli_main
-    from .simulate import MAX_SIDE, MAX_VIEWS
+    from .simulate import check_scan_options
 
     # the options checked before anything is written (else a pattern.png left behind)
-    if not 1 <= args.views <= MAX_VIEWS:
-        raise NurbscanError(f"--views {args.views}: must be 1 to {MAX_VIEWS}")
-    if args.seed < 0:
-        raise NurbscanError(f"--seed {args.seed}: must be >= 0")
-    for name in ("width", "height"):
-        v = getattr(args, name)
-        if v is not None and not 16 <= v <= MAX_SIDE:
-            raise NurbscanError(f"--{name} {v}: must be 16 to {MAX_SIDE} px")
+    check_scan_options(args)
     out: Path = args.output
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

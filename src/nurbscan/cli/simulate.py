@@ -68,14 +68,7 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.noise >= 0:  # NaN too
         raise NurbscanError(f"--noise {args.noise}: must be a number >= 0")
-    if args.seed < 0:
-        raise NurbscanError(f"--seed {args.seed}: must be >= 0")
-    for name in ("width", "height"):
-        v = getattr(args, name)
-        if v is not None and not 16 <= v <= MAX_SIDE:
-            raise NurbscanError(f"--{name} {v}: must be 16 to {MAX_SIDE} px")
-    if not 1 <= args.views <= MAX_VIEWS:
-        raise NurbscanError(f"--views {args.views}: must be 1 to {MAX_VIEWS}")
+    check_scan_options(args)
     if args.workers < 0:
         raise NurbscanError(f"--workers {args.workers}: must be >= 0")
     if args.rig:
@@ -112,3 +105,16 @@ def run(args: argparse.Namespace) -> int:
                       seed=args.seed, progress=progress, calibration=not args.no_calibration,
                       workers=args.workers)
     return 0
+
+
+def check_scan_options(args: argparse.Namespace) -> None:
+    """``--seed``, ``--width``, ``--height`` and ``--views`` in range (simulate's and demo's),
+    checked before anything is written; a one-line :class:`NurbscanError` otherwise."""
+    if args.seed < 0:
+        raise NurbscanError(f"--seed {args.seed}: must be >= 0")
+    for name in ("width", "height"):
+        v = getattr(args, name)
+        if v is not None and not 16 <= v <= MAX_SIDE:
+            raise NurbscanError(f"--{name} {v}: must be 16 to {MAX_SIDE} px")
+    if not 1 <= args.views <= MAX_VIEWS:
+        raise NurbscanError(f"--views {args.views}: must be 1 to {MAX_VIEWS}")
