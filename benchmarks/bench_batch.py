@@ -148,6 +148,7 @@ def small_batch(root: Path) -> dict:
                       "cpu": task_seconds(s, cpu=True),
                       "hashes": [model_hash(dest / p.name / "model") for p in scans],
                       "summary": s}
+    runs["serial_one_core"] = _serial_one_core(scans, root)
     ser, dk = runs["serial"], runs["dask"]
     t_ser = sum(ser["tasks"].values())
     t_dk = sum(dk["tasks"].values())
@@ -167,10 +168,48 @@ def small_batch(root: Path) -> dict:
     out["wall less the cluster's start / (serial tasks' time / 2)"] = (
         (dk["wall"] - dk["start"]) / (t_ser / WORKERS))
     out["wall / (cluster tasks' time / 2)"] = dk["wall"] / (t_dk / WORKERS)
+    one = runs["serial_one_core"]
+    t_one = sum(one["tasks"].values())
+    out["serial on one core: outputs identical"] = one["hashes"] == dk["hashes"]
+    out["serial on one core: tasks' own time summed (s)"] = t_one
+    out["serial on one core: load average before -> after"] = one["load"]
+    out["wall / (serial on one core / 2)"] = dk["wall"] / (t_one / WORKERS)
+    out["wall less the cluster's start / (serial on one core / 2)"] = (
+        (dk["wall"] - dk["start"]) / (t_one / WORKERS))
     best = list_schedule(ser["summary"])
     out[f"the graph on {WORKERS} perfect workers with the serial tasks' times (s)"] = best
     out["that / (serial tasks' time / 2): the graph's own bound"] = best / (t_ser / WORKERS)
     return out
+
+
+SERIAL_CHILD = """
+import sys
+from nurbscan.batch import BatchOptions, run_batch
+scans, out, calib = sys.argv[1].split("|"), sys.argv[2], sys.argv[3]
+s = run_batch(scans, out, calib=calib, options=BatchOptions(exports=("glb",), evaluate=False),
+              serial=True)
+assert s["ok"] == len(scans), s
+"""
+
+
+def _serial_one_core(scans: list[Path], root: Path) -> dict:
+    """The serial run in a process bound to one core (``sched_setaffinity`` before exec, so
+    that OpenCV's and Open3D's threads share it): the time one worker's core takes for the
+    tasks, the reference of a cluster whose workers each have one core (the in-process serial
+    run may use the second core in OpenCV's filters and Open3D's Poisson solver)."""
+    dest = root / "out_serial_one_core"
+    shutil.rmtree(dest, ignore_errors=True)
+    load0 = loadavg()
+    t0 = time.perf_counter()
+    r = subprocess.run([sys.executable, "-c", SERIAL_CHILD, "|".join(map(str, scans)),
+                        str(dest), str(root / "calib.json")], capture_output=True, text=True,
+                       env=os.environ.copy(), preexec_fn=lambda: os.sched_setaffinity(0, {0}))
+    wall = time.perf_counter() - t0
+    if r.returncode:
+        raise RuntimeError(f"serial run on one core failed: {r.stderr[-2000:]}")
+    s = json.loads((dest / "batch.json").read_text())
+    return {"wall": wall, "tasks": task_seconds(s), "load": f"{load0} -> {loadavg()}",
+            "hashes": [model_hash(dest / p.name / "model") for p in scans], "summary": s}
 
 
 CHILD = """

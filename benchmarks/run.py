@@ -128,6 +128,8 @@ TARGETS = [
      "batch", "small batch / wall / (serial tasks' time / 2)", "<=", 1.2),
     ("batch: the same, less the cluster's start-up", "batch",
      "small batch / wall less the cluster's start / (serial tasks' time / 2)", "<=", 1.2),
+    ("batch: the same, against the serial run bound to one core (one worker's core)", "batch",
+     "small batch / wall / (serial on one core / 2)", "<=", 1.2),
 ]
 #: A slope counts as linear within this distance of 1.
 SLOPE_TOL = 0.2

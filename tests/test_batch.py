@@ -288,3 +288,15 @@ def test_batch_calibrates_a_scan_from_its_images(tmp_path, capsys):
     # gives tenths of a mm)
     ev = rep["evaluation"]
     assert ev["gordon_mean_mm"] < 0.06 and ev["coverage"] > 0.15, ev
+
+
+def test_worker_preload_gives_opencv_one_thread():
+    """A worker's preload sets OpenCV to one thread (as Dask's nanny sets OpenMP), where
+    OpenCV starts with one per core; the models stay bit for bit (the LocalCluster test)."""
+    code = ("import cv2; n = cv2.getNumThreads(); import nurbscan.batch.preload as p; "
+            "print(n, cv2.getNumThreads(), p.reuse_freed_memory())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, env={**os.environ, "OPENCV_FOR_THREADS_NUM": "2"})
+    before, after, glibc = out.stdout.split()
+    assert int(before) == 2 and int(after) == 1
+    assert glibc == "True"

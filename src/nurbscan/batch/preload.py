@@ -9,6 +9,10 @@
 2. **Imports.** The tasks import the detector, the reconstruction, the fusion (Open3D) and
    the export (trimesh, rhino3dm) lazily; imported here, a worker's first task runs as fast as
    its later ones and the imports count in the cluster's start-up, not in a scan's tasks.
+3. **One OpenCV thread.** Dask's nanny gives each worker ``OMP_NUM_THREADS=1`` (one thread of
+   BLAS and OpenMP per worker thread: the parallelism is across tasks), but OpenCV starts its
+   own pool of one thread per core in every worker; two workers on two cores then run four
+   filter threads. Here OpenCV is set to one thread (:data:`OPENCV_THREADS`).
 """
 
 from __future__ import annotations
@@ -34,7 +38,19 @@ def reuse_freed_memory() -> bool:
         mallopt(M_MMAP_THRESHOLD, MMAP_BYTES))
 
 
+#: OpenCV threads per worker (``cv2.setNumThreads``): one, as Dask's nanny does for OpenMP.
+OPENCV_THREADS = 1
+
+
+def one_thread_per_task() -> None:
+    """Set OpenCV's thread pool to :data:`OPENCV_THREADS` (its filters give the same values)."""
+    import cv2
+
+    cv2.setNumThreads(OPENCV_THREADS)
+
+
 reuse_freed_memory()
+one_thread_per_task()
 
 from ..detect import detect_grid  # noqa: E402, F401
 from ..evaluate import evaluate_model  # noqa: E402, F401
