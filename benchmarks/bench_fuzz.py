@@ -36,6 +36,7 @@ lines. Targets: 0 crashes, 0 hangs, 0 wrong results.
 
 from __future__ import annotations
 
+import collections
 import functools
 import multiprocessing as mp
 import os
@@ -367,7 +368,8 @@ def one_case(index: int, scan: Path, save: Path | None = None) -> dict:
     if not (scan / "pattern.json").exists():
         _scan(scan)
     bases, pattern = load_bases(scan)
-    *_, (_, kind, (name, grid, white, maps)) = cases(bases, index + 1)
+    # the last of the first index + 1 cases, the others dropped as they are made (memory)
+    _, kind, (name, grid, white, maps) = collections.deque(cases(bases, index + 1), maxlen=1)[0]
     if save is not None:
         save.mkdir(parents=True, exist_ok=True)
         for tag, im in (("grid", grid), ("white", white)):

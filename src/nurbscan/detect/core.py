@@ -116,6 +116,7 @@ from .prepare import (  # noqa: F401
 )
 from .refine import Lines, refine_points, select_points
 from .result import DetectionResult
+from .tilt import detect_tilted, grid_tilt
 
 #: Corner points (``corner_dominance``) extend a final line when within this (camera px) of
 #: the straight line through its other points within 6 chain positions (1280 x 960 teapot:
@@ -174,8 +175,12 @@ def detect_grid(image, pattern, white=None, options: DetectOptions = _DEFAULT, *
         if "epipolar" in legacy:
             epipolar = legacy.pop("epipolar")
         options = options.replace(**legacy)
-    clock = _Clock(timings)
     o = options
+    if o.decoding.find_orientation:
+        tilt = grid_tilt(image)
+        if tilt.needs_levelling:
+            return detect_tilted(image, white, pattern, o, tilt, epipolar, timings)
+    clock = _Clock(timings)
     try:
         prep = clock("normalise", prepare(image, white, pattern, o.image, o.edges.sigma,
                                           o.edges.sigma_per_band))

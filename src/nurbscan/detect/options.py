@@ -291,7 +291,10 @@ class DecodeOptions(_Group):
         Find the grid's orientation from the colour windows
         (:func:`~nurbscan.detect.orientation.grid_orientation`) and, when the photograph is
         rotated by 90, 180 or 270 degrees, mirrored or transposed, detect its upright image
-        and map the result back (a warning says so); False reads it as upright.
+        and map the result back (a warning says so); before that, a photograph whose grid is
+        turned by about 45 degrees (:data:`~nurbscan.detect.tilt.MIN_MARGIN_DEG`) is read in
+        its image turned level (:func:`~nurbscan.detect.tilt.detect_tilted`). False reads it
+        as upright.
     """
 
     min_votes: int = 3
