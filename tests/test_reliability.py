@@ -371,6 +371,36 @@ def test_real_photographs_are_read_as_they_are():
     assert min(margins) > MIN_MARGIN_DEG + 5, margins
 
 
+def test_a_result_of_a_few_short_lines_is_refused():
+    """check_extent: fewer than MIN_LONG_LINES lines longer than LONG_LINE_PX is no grid (the
+    fuzz benchmark's cases 3222, 3970 and 4707 at 9cae89e: 17, 5 and 37 lines of 3 to 49 px,
+    every one labelled wrongly, returned with exit 0); four such lines are a result."""
+    from dataclasses import replace
+
+    from nurbscan.detect.checks import LONG_LINE_PX, MIN_LONG_LINES, check_extent
+    from nurbscan.detect.prepare import NoGrid
+    from nurbscan.detect.result import DetectionResult
+
+    def result(lengths):
+        """Straight vertical lines of the given lengths (px), 2 px between points."""
+        xs, ys, line = [], [], []
+        for k, n in enumerate(lengths):
+            y = np.arange(0.0, n + 1e-9, 2.0)
+            xs.append(np.full(y.size, 10.0 * k))
+            ys.append(y)
+            line.append(np.full(y.size, k))
+        n = len(lengths)
+        return replace(DetectionResult.empty((200, 200), ()), x=np.concatenate(xs),
+                       y=np.concatenate(ys), line=np.concatenate(line),
+                       band=np.arange(n), direction=np.zeros(n, int), edge=np.zeros(n, int))
+
+    short = [6.0] * 30 + [LONG_LINE_PX + 4] * (MIN_LONG_LINES - 1)
+    with pytest.raises(NoGrid, match="too few to check their labels"):
+        check_extent(result(short))
+    check_extent(result(short + [LONG_LINE_PX + 4]))  # one more long line: kept
+    check_extent(DetectionResult.empty((200, 200), ()))  # nothing to refuse
+
+
 def test_orientation_maps_points_back():
     """Orientation.apply and to_photograph agree for the eight turns: a pixel's value in the
     upright image is the photograph's value at the mapped point, and to_upright inverts it."""

@@ -34,6 +34,14 @@ from .refine import Lines
 #: one family, all wrong; 4 is the chains' least length.
 CONFIRM_LENGTH, CONFIRM_MIN_LINES = 4, 5
 
+#: :func:`check_extent`: a result with fewer than ``MIN_LONG_LINES`` lines longer than
+#: ``LONG_LINE_PX`` (camera px, the benchmark's own "lines over 20 px") is refused. bench_fuzz
+#: at 9cae89e: the three wrong results left once the tilt was measured (cases 3222, 3970, 4707:
+#: crops of views turned, with noise and JPEG) had 17, 5 and 37 lines, every one labelled
+#: wrongly, and 1 line each over 20 px; of the first 1,500 cases' results with the truth, the
+#: 3 with fewer than 4 such lines (1 to 3 lines each) were right but too small to be of use.
+LONG_LINE_PX, MIN_LONG_LINES = 20.0, 4
+
 #: ``plane_support``'s neighbours and largest distance from the plane's edge (camera px), for
 #: ``plane_radius``.
 PLANE_K, PLANE_TOL = 24, 0.5
@@ -169,6 +177,34 @@ def check_labels(counts: np.ndarray, direction: np.ndarray, prep: Prepared) -> N
                          f"decoded and no {names[other]}-band edge (is the photograph "
                          "rotated? the projector's vertical bands must appear upright)",
                          prep.size)
+
+
+def check_extent(result) -> None:
+    """Refuse a result too small for its labels to have been checked against each other.
+
+    The labels of a line are confirmed by its neighbours along the rows and by its
+    intersections (:func:`check_lines`); a handful of short pieces has neither, and in a
+    noisy crop of a turned view such pieces were decoded consistently and all wrongly. Raises
+    :class:`~nurbscan.detect.prepare.NoGrid` when fewer than ``MIN_LONG_LINES`` of the
+    result's lines are longer than ``LONG_LINE_PX`` (arc length of their points, camera px).
+
+    Parameters
+    ----------
+    result : DetectionResult
+        The detection's result (its points ``x``, ``y`` in line order, ``line``).
+    """
+    n = result.nlines
+    if n == 0:
+        return
+    x, y, line = result.x, result.y, result.line
+    same = line[1:] == line[:-1]
+    seg = np.hypot(np.diff(x), np.diff(y))
+    length = np.bincount(line[1:][same], weights=seg[same], minlength=n)
+    long = int(np.sum(length > LONG_LINE_PX))
+    if long < MIN_LONG_LINES:
+        raise NoGrid(f"image: only {long} of the {n} decoded lines are longer than "
+                     f"{LONG_LINE_PX:.0f} px, too few to check their labels: no grid found",
+                     tuple(result.image_size))
 
 
 def row_support(x: np.ndarray, y: np.ndarray, direction: np.ndarray, coord: np.ndarray,

@@ -58,6 +58,7 @@ from .chains import (  # noqa: F401  (re-exported)
 from .checks import (  # noqa: F401
     PLANE_K,
     PLANE_TOL,
+    check_extent,
     check_lines,
     plane_support,
     row_disagreement,
@@ -209,7 +210,9 @@ def detect_grid(image, pattern, white=None, options: DetectOptions = _DEFAULT, *
                                                        pattern))
         lines, coord, inter = clock("checks", check_lines(lines, coord, inter, prep, pattern,
                                                           o.checks, o.chains.min_length))
-        return clock("result", finish(lines, coord, inter, edges, prep, o))
+        result = clock("result", finish(lines, coord, inter, edges, prep, o))
+        check_extent(result)
+        return result
     except NoGrid as e:
         _warnings.warn(e.reason, UserWarning, stacklevel=2)
         return DetectionResult.empty(e.size, (e.reason,))
