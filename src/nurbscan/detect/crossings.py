@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._threads import parallel_map
 from .chains import Chains
 from .decode import (
     band_crossings,
@@ -94,8 +95,9 @@ def _runs(chains: Chains, prep: Prepared, pattern, along_grid: bool, strict: np.
     sig = nrm.signal
     ratio = pattern.band / pattern.pitch
     acr = chains.across.astype(np.float64) if along_grid else None
-    parts, grid_rows = [], []
-    for d, name in ((0, "vertical"), (1, "horizontal")):
+
+    def direction(dn):  # the crossings of one direction
+        d, name = dn
         sel = np.nonzero((cls // 2) == d)[0]
         # runs, the position along them, and the pixel of run coordinate c near point i:
         # base[i] + (c - across[i]) * step[i]; wscale turns a width along the run into the
@@ -115,8 +117,7 @@ def _runs(chains: Chains, prep: Prepared, pattern, along_grid: bool, strict: np.
             step[:, d] = 1.0
             wscale = np.ones(len(sel))
         o, st = band_crossings(across, run, cls[sel] % 2, ratio, tol=WIDTH_TOL)
-        if along_grid and len(sel) >= 3:
-            grid_rows.append((d, sel[o], run[o], across[o]))  # o: by (run, across)
+        row = (d, sel[o], run[o], across[o]) if along_grid and len(sel) >= 3 else None
         a = across[o]
         mid = 0.5 * (a[st] + a[st + 1])
         qm = base[o[st]] + (mid - a[st])[:, None] * step[o[st]]
@@ -134,8 +135,13 @@ def _runs(chains: Chains, prep: Prepared, pattern, along_grid: bool, strict: np.
             lev = bilinear(sig, gap_mid, rr) if d == 0 else bilinear(sig, rr, gap_mid)
             dark = (lev < DARK_LEVEL) & (nxt == st + 2) & (run[o[nxt]] == run[o[st]])
             clean = dark | np.r_[False, dark[:-1]]
-        parts.append((sel, across, run, o, st, samples, clean, name, wscale))
-    return parts, tuple(grid_rows)
+        return (sel, across, run, o, st, samples, clean, name, wscale), row
+
+    # (the two directions side by side: _threads)
+    out = parallel_map(direction, ((0, "vertical"), (1, "horizontal")))
+    parts = [p for p, _ in out]
+    grid_rows = tuple(r for _, r in out if r is not None)  # o: by (run, across)
+    return parts, grid_rows
 
 
 def read_colours(chains: Chains, prep: Prepared, pattern, options) -> Reading:
