@@ -69,8 +69,9 @@ def _timed(fn: Callable, arg) -> tuple[Any, float]:
 
 def parallel_map(fn: Callable[[Any], Any], items: Sequence[Any]) -> list[Any]:
     """``[fn(item) for item in items]``, the first item in this thread and the others in the
-    pool's (up to :func:`thread_count` at once); results in the items' order. ``fn`` must
-    not write to anything the other items read."""
+    pool's (up to :func:`thread_count` at once; this thread takes those no worker has started
+    when it is done with its own); results in the items' order. ``fn`` must not write to
+    anything the other items read."""
     items = list(items)
     n = min(thread_count(), len(items))
     if n <= 1 or getattr(_LOCAL, "worker", False):
@@ -78,11 +79,19 @@ def parallel_map(fn: Callable[[Any], Any], items: Sequence[Any]) -> list[Any]:
     pool = _pool(n - 1)
     futures = [pool.submit(_timed, fn, item) for item in items[1:]]
     first, own = _timed(fn, items[0])
-    rest = [f.result() for f in futures]
-    # the longest path: the slower of the two sides (serial on the worker side beyond one
-    # worker thread, which a two-core machine has)
-    _EXTRA[0] += max(0.0, sum(t for _, t in rest) - own)
-    return [first] + [r for r, _ in rest]
+    rest, theirs = [], 0.0
+    for f, item in zip(futures, items[1:], strict=True):
+        if f.cancel():  # not started yet: run here
+            r, t = _timed(fn, item)
+            own += t
+        else:
+            r, t = f.result()
+            theirs += t
+        rest.append(r)
+    # the longest path: the slower of the two sides (the workers' jobs one after the other,
+    # as on a two-core machine)
+    _EXTRA[0] += max(0.0, theirs - own)
+    return [first] + rest
 
 
 def critical_cpu() -> float:
