@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from ..errors import NurbscanError
+from ._threads import parallel_map
 
 
 def smooth_field(a: np.ndarray, sigma: float, op: str | None = None, size: int = 1
@@ -185,7 +186,7 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
     dark = smooth_field(cv2.min(cv2.min(chans[0], chans[1]), chans[2]), window / 3, "min",
                         window)
     in_place = overwrite and white is not None  # (chans_in is needed without a white image)
-    chans = tuple(cv2.subtract(c, dark, dst=c if in_place else None) for c in chans)
+    wp = None
     if white is not None:
         wp = _planes(white, "white image")
         if wp[0].shape != chans[0].shape:
@@ -193,44 +194,55 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
                 f"white image: size {wp[0].shape[1]}x{wp[0].shape[0]} does not match the grid "
                 f"image's {chans[0].shape[1]}x{chans[0].shape[0]}"
             )
-        dens = []
-        # cv2.GaussianBlur(c, (0, 0), 0.7)'s own kernel and border, through sepFilter2D: the
-        # same values, in half the time
-        g = cv2.getGaussianKernel(7, 0.7, cv2.CV_32F)
-        for c in wp:  # the blurred white minus the dark level, in place (no fresh 28 MB)
-            d = cv2.sepFilter2D(c, cv2.CV_32F, g, g, borderType=cv2.BORDER_REFLECT_101)
-            dens.append(cv2.subtract(d, dark, dst=d))
+    wts = np.ones(3) if weights is None else np.asarray(weights, np.float64)
+    if wts.shape != (3,) or not np.all(wts >= 0) or not wts.sum() > 0:
+        raise NurbscanError(f"weights={weights!r}: need three non-negative channel weights")
+    wts = (3.0 * wts / wts.sum()).astype(np.float32)
+    # cv2.GaussianBlur(c, (0, 0), 0.7)'s own kernel and border, through sepFilter2D: the
+    # same values, in half the time
+    g = cv2.getGaussianKernel(7, 0.7, cv2.CV_32F)
+
+    def channel(c):  # one channel's part (the channels side by side: _threads)
+        ch = cv2.subtract(chans[c], dark, dst=chans[c] if in_place else None)
+        if wp is None:
+            return ch, None, None
+        # the blurred white minus the dark level, in place (no fresh 28 MB)
+        d = cv2.sepFilter2D(wp[c], cv2.CV_32F, g, g, borderType=cv2.BORDER_REFLECT_101)
+        d = cv2.subtract(d, dark, dst=d)
+        lit = d > floor
+        np.maximum(d, np.float32(floor), out=d)  # 1 / max(d, floor), in place
+        np.reciprocal(d, out=d)
+        return ch, d, lit
+
+    parts = parallel_map(channel, range(3))
+    chans = tuple(ch for ch, _, _ in parts)
+    if wp is not None:
         # max over the channels > floor, without the image-sized maxima
-        valid = (dens[0] > floor) | (dens[1] > floor) | (dens[2] > floor)
-        for d in dens:  # 1 / max(d, floor), in place (no fresh 28 MB arrays)
-            np.maximum(d, np.float32(floor), out=d)
-            np.reciprocal(d, out=d)
-        inv = tuple(dens)
+        valid = (parts[0][2] | parts[1][2]) | parts[2][2]
+        inv = tuple(d for _, d, _ in parts)
     else:
         env = smooth_field(cv2.max(cv2.max(chans_in[0], chans_in[1]), chans_in[2]),
                            window / 3, "max", window)
         den = env - dark
         valid = den > floor
         inv = (1.0 / np.maximum(den, floor),)
+    del parts
     inv3 = inv if len(inv) == 3 else inv * 3
-    wts = np.ones(3) if weights is None else np.asarray(weights, np.float64)
-    if wts.shape != (3,) or not np.all(wts >= 0) or not wts.sum() > 0:
-        raise NurbscanError(f"weights={weights!r}: need three non-negative channel weights")
-    wts = (3.0 * wts / wts.sum()).astype(np.float32)
-    # signal = sum_c chans_c * (inv_c * wts_c), in two buffers (a weight of 1 multiplies
-    # exactly: left out)
-    signal = np.empty_like(chans[0])
-    term = np.empty_like(chans[0])
-    for c in range(3):
-        out = signal if c == 0 else term
+    # signal = sum_c chans_c * (inv_c * wts_c), the three products side by side into their
+    # own buffers and summed in the channels' order (a weight of 1 multiplies exactly: left
+    # out)
+
+    def product(c):
         if wts[c] == 1:
-            np.multiply(chans[c], inv3[c], out=out)
-        else:
-            np.multiply(inv3[c], wts[c], out=out)
-            np.multiply(chans[c], out, out=out)
-        if c:
-            signal += term
-    del term
+            return np.multiply(chans[c], inv3[c])
+        out = np.multiply(inv3[c], wts[c])
+        return np.multiply(chans[c], out, out=out)
+
+    terms = parallel_map(product, range(3))
+    signal = terms[0]
+    signal += terms[1]
+    signal += terms[2]
+    del terms
     return Normalised(signal=signal, valid=valid, channels=chans, inverse=inv)
 
 
