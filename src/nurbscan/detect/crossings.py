@@ -161,10 +161,11 @@ def read_colours(chains: Chains, prep: Prepared, pattern, options) -> Reading:
     parts, grid_rows = _runs(chains, prep, pattern, along_grid, strict)
     allsamp = np.concatenate([q[5][q[6]] for q in parts]) if parts else np.zeros((0, 3))
     _, centres = classify_colours(allsamp, pattern.rgb)
-    vp, vi, vj, spacing, props, spans = [], [], [], [], [], []
     paired = np.zeros(len(px), bool)
     partner = np.full(len(px), -1, np.int64)  # the other edge point of a point's crossing
-    for sel, across, run, o, st, samples, clean, name, wscale in parts:
+
+    def votes(part):  # one direction's colours and votes (the two side by side: _threads)
+        sel, across, run, o, st, samples, clean, name, wscale = part
         codes, _ = classify_colours(samples, pattern.rgb, iterations=0, centres=centres)
         # the colour of a band is a property of its edge lines: vote over the clean crossings
         lr, lf = line[sel[o[st]]], line[sel[o[st + 1]]]
@@ -175,24 +176,34 @@ def read_colours(chains: Chains, prep: Prepared, pattern, options) -> Reading:
         cr, cf = lcode[lr], lcode[lf]
         ccode = np.where(cr < 0, cf, np.where((cf < 0) | (cf == cr), cr, -1))
         p_, i_, j_ = window_votes(o, st, run, across, ccode, pattern, name)
-        spans.append(window_spans(o, st, run, ccode, pattern))
+        span = window_spans(o, st, run, ccode, pattern)
         a = across[o]
-        props.append((lr, lf, st, run[o[st]], a[st], a[st + 1], lcode, name))
+        prop = (lr, lf, st, run[o[st]], a[st], a[st + 1], lcode, name)
         # a band narrower than min_width sigma: its two edges' blurred profiles overlap and
         # the fitted peaks move apart (outward bias), so its points are not kept
         both = strict[sel[o[st]]] & strict[sel[o[st + 1]]] & \
             ((a[st + 1] - a[st]) * wscale[o[st]] >= min_width * sigma)
-        paired[sel[o[st[both]]]] = True
-        paired[sel[o[st[both] + 1]]] = True
-        partner[sel[o[st[both]]]] = sel[o[st[both] + 1]]
-        partner[sel[o[st[both] + 1]]] = sel[o[st[both]]]
-        vp.append(sel[p_])
-        vi.append(i_)
-        vj.append(j_)
+        rising, falling = sel[o[st[both]]], sel[o[st[both] + 1]]
+        gaps = None
         if len(st) > 1:
             mids = 0.5 * (a[st] + a[st + 1])
             same = (st[1:] == st[:-1] + 2)
-            spacing.append((mids[1:] - mids[:-1])[same])
+            gaps = (mids[1:] - mids[:-1])[same]
+        return prop, span, rising, falling, sel[p_], i_, j_, gaps
+
+    vp, vi, vj, spacing, props, spans = [], [], [], [], [], []
+    for prop, span, rising, falling, p_, i_, j_, gaps in parallel_map(votes, parts):
+        props.append(prop)
+        spans.append(span)
+        paired[rising] = True
+        paired[falling] = True
+        partner[rising] = falling
+        partner[falling] = rising
+        vp.append(p_)
+        vi.append(i_)
+        vj.append(j_)
+        if gaps is not None:
+            spacing.append(gaps)
     sp = np.concatenate(spacing) if spacing else np.zeros(0)
     return Reading(props=tuple(props), paired=paired, partner=partner,
                    lcode=np.max(np.stack([q[6] for q in props]), axis=0),
