@@ -275,10 +275,23 @@ def noise_level(signal: np.ndarray, valid: np.ndarray | None = None, step: int =
        Understanding 64(2), 300-302, 1996.
     """
     k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
-    r = np.abs(cv2.filter2D(np.asarray(signal, np.float32), -1, k,
-                            borderType=cv2.BORDER_REFLECT))[1:-1:step, 1:-1:step]
+    signal = np.asarray(signal, np.float32)
+    h, w = signal.shape
+    rows, cols = slice(0, h), slice(0, w)
     if valid is not None:
-        r = r[np.asarray(valid, bool)[1:-1:step, 1:-1:step]]
+        # over the valid pixels' window, widened by the mask's reach (the same samples: a
+        # third of the work on a 7.1 MP teapot view)
+        from .edges import work_window
+
+        valid = np.asarray(valid, bool)
+        rows, cols = work_window(valid, 1)
+    # the sampled pixels: rows and columns 1, 1 + step, ... below h - 1 and w - 1
+    r0, c0 = (max(a, 1) + (1 - max(a, 1)) % step - a for a in (rows.start, cols.start))
+    r1, c1 = min(rows.stop, h - 1) - rows.start, min(cols.stop, w - 1) - cols.start
+    r = np.abs(cv2.filter2D(signal[rows, cols], -1, k,
+                            borderType=cv2.BORDER_REFLECT))[r0:r1:step, c0:c1:step]
+    if valid is not None:
+        r = r[valid[rows, cols][r0:r1:step, c0:c1:step]]
     if r.size == 0:
         return float("nan")
     return float(np.median(r) / (6.0 * 0.6745))
