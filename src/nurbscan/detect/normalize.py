@@ -228,21 +228,24 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
         inv = (1.0 / np.maximum(den, floor),)
     del parts
     inv3 = inv if len(inv) == 3 else inv * 3
-    # signal = sum_c chans_c * (inv_c * wts_c), the three products side by side into their
-    # own buffers and summed in the channels' order (a weight of 1 multiplies exactly: left
-    # out)
+    # signal = sum_c chans_c * (inv_c * wts_c), in two buffers (a weight of 1 multiplies
+    # exactly: left out); the two halves of the rows side by side (_threads)
+    signal = np.empty_like(chans[0])
+    term = np.empty_like(chans[0])
 
-    def product(c):
-        if wts[c] == 1:
-            return np.multiply(chans[c], inv3[c])
-        out = np.multiply(inv3[c], wts[c])
-        return np.multiply(chans[c], out, out=out)
+    def products(rows):
+        for c in range(3):
+            out = signal[rows] if c == 0 else term[rows]
+            if wts[c] == 1:
+                np.multiply(chans[c][rows], inv3[c][rows], out=out)
+            else:
+                np.multiply(inv3[c][rows], wts[c], out=out)
+                np.multiply(chans[c][rows], out, out=out)
+            if c:
+                signal[rows] += out
 
-    terms = parallel_map(product, range(3))
-    signal = terms[0]
-    signal += terms[1]
-    signal += terms[2]
-    del terms
+    half = len(signal) // 2
+    parallel_map(products, (slice(0, half), slice(half, len(signal))))
     return Normalised(signal=signal, valid=valid, channels=chans, inverse=inv)
 
 
