@@ -114,9 +114,11 @@ def gradient(signal: np.ndarray, sigma: float, sigma_along: float | None = None
     g, dg = gaussian_kernels(sigma)
     ga, _ = gaussian_kernels(sa)
     s = np.ascontiguousarray(signal, dtype=np.float32)
-    # cv2.sepFilter2D correlates: flip the odd kernel to convolve
-    gx = cv2.sepFilter2D(s, cv2.CV_32F, dg[::-1].copy(), ga, borderType=cv2.BORDER_REFLECT)
-    gy = cv2.sepFilter2D(s, cv2.CV_32F, ga, dg[::-1].copy(), borderType=cv2.BORDER_REFLECT)
+    # cv2.sepFilter2D correlates: flip the odd kernel to convolve (the two side by side:
+    # _threads)
+    gx, gy = parallel_map(lambda k: cv2.sepFilter2D(s, cv2.CV_32F, *k,
+                                                    borderType=cv2.BORDER_REFLECT),
+                          ((dg[::-1].copy(), ga), (ga, dg[::-1].copy())))
     return gx, gy
 
 
@@ -268,13 +270,16 @@ def across_operators(theta_v: np.ndarray, theta_h: np.ndarray, shape: tuple[int,
     tv = np.where(theta_v > np.pi / 2, theta_v - np.pi, theta_v)  # n_v towards +x
     nv = np.stack([np.cos(tv), np.sin(tv)])
     nh = np.stack([np.cos(theta_h), np.sin(theta_h)])  # towards +y (theta_h in [0, pi))
-    out = []
-    for n_own, n_other in ((nv, nh), (nh, nv)):
+
+    def operator(normals):  # one family's (the two side by side: _threads)
+        n_own, n_other = normals
         m = np.stack([-n_other[1], n_other[0]])  # the other family's edge tangent
         dot = (m * n_own).sum(0)
         m = np.where(dot < 0, -m, m)
         a = m / np.maximum(np.abs(dot), 0.25)
-        out.append(tuple(_tiles_to_pixels(c, (h, w)) for c in a))
+        return tuple(_tiles_to_pixels(c, (h, w)) for c in a)
+
+    out = parallel_map(operator, ((nv, nh), (nh, nv)))
     return out[0], out[1]
 
 
@@ -510,11 +515,13 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         # with the doubled-angle vectors interpolated bilinearly between the tiles
         mag2, diff2, prod2 = gxs * gxs + gys * gys, gxs * gxs - gys * gys, 2.0 * gxs * gys
         del gxs, gys
-        comp = []
-        for t in (tv, th):
+
+        def component(t):  # one family's (the two side by side: _threads)
             c2, s2 = (_tiles_to_pixels(f(2 * t), (h, w))[sy, sx] for f in (np.cos, np.sin))
             r = np.hypot(c2, s2)
-            comp.append(mag2 + (diff2 * c2 + prod2 * s2) / np.where(r > 0, r, 1.0))
+            return mag2 + (diff2 * c2 + prod2 * s2) / np.where(r > 0, r, 1.0)
+
+        comp = parallel_map(component, (tv, th))
         vmask = np.zeros((h, w), bool)
         hmask = np.zeros((h, w), bool)
         d2 = dominance * dominance
