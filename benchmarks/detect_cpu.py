@@ -9,10 +9,19 @@ the CPU clock. With ``--old SRC`` (a ``src`` folder of another checkout, e.g. fr
 and the two are called alternately, so that both see the same load; the result hashes
 (``detect_hash.py``) of the two are compared.
 
+The detector runs the halves of its stages side by side in threads
+(:mod:`nurbscan.detect._threads`), which the process's CPU time sums; the *path* columns
+give the CPU time of the longest path (the calling thread's CPU time plus, per parallel
+call, how much longer the worker's half ran: :func:`~nurbscan.detect._threads.critical_cpu`),
+which is the wall time on an otherwise idle two-core machine where the GIL is free, without
+depending on the load of a shared one (for a version without threads it is its CPU time).
+
 Usage: ``PYTHONPATH=src python benchmarks/detect_cpu.py [--old /tmp/old/src] [--calls 3]
-[--json]`` (the view cached as ``bench_detect.py`` caches it; prints one line per stage: the
-minimum over the warm calls, CPU s; with ``--json`` one JSON line instead, with the old
-version's total over the new one's and the machine's load average before and after).
+[--threads N] [--json]`` (the view cached as ``bench_detect.py`` caches it; prints one line
+per stage: the minimum over the warm calls, CPU s and the longest path's CPU s; ``--threads``
+sets ``NURBSCAN_DETECT_THREADS``; with ``--json`` one JSON line instead, with the old
+version's total over the new one's, CPU and longest path, and the machine's load average
+before and after).
 """
 
 from __future__ import annotations
@@ -133,6 +142,8 @@ def main(argv: list[str]) -> None:
                                      "after": round(os.getloadavg()[0], 2)}}
         if "old" in cpu:
             out["old_total_over_new"] = round(cpu["old"]["total"] / cpu["new"]["total"], 3)
+            out["old_total_over_new_path"] = round(path["old"]["total"]
+                                                   / path["new"]["total"], 3)
         print(json.dumps(out))
         return
     print(f"{'stage':14s} " + " ".join(f"{n:>7s}" for n in names)
