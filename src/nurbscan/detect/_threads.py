@@ -98,15 +98,15 @@ def parallel_map(fn: Callable[[Any], Any], items: Sequence[Any]) -> list[Any]:
     pool = _pool(n - 1)
     futures = [pool.submit(_timed, fn, item) for item in items[1:]]
     first, own = _timed(fn, items[0])
-    rest, theirs = [], 0.0
-    for f, item in zip(futures, items[1:], strict=True):
+    rest, here, theirs = [None] * len(futures), [False] * len(futures), 0.0
+    for i, f in enumerate(futures):
         if f.cancel():  # not started yet: run here
-            r, t = _timed(fn, item)
-            own += t
-        else:
-            r, t = f.result()
+            rest[i], t = _timed(fn, items[i + 1])
+            here[i], own = True, own + t
+    for i, f in enumerate(futures):
+        if not here[i]:
+            rest[i], t = f.result()
             theirs += t
-        rest.append(r)
     # the longest path: the slower of the two sides (the workers' jobs one after the other,
     # as on a two-core machine)
     _EXTRA[0] += max(0.0, theirs - own)
