@@ -7,7 +7,8 @@ returns a dict with
 * ``seconds`` / ``seconds_warm``: wall time of :func:`nurbscan.detect.detect_grid` on the 1x
   image (grid + white, uint8), first call and second call in a fresh process;
 * ``cpu_seconds_warm``: the process's CPU time of the second call (less disturbed than the wall
-  time by other work on a shared machine);
+  time by other work on a shared machine); ``path_cpu_seconds_warm`` that of its longest path
+  (:func:`nurbscan.detect._threads.critical_cpu`, with ``threads`` threads);
 * ``stages_warm_s``: the second call's wall time per stage (``detect_grid``'s ``timings``:
   normalise, edges, chains, reading, decoding, families, refine, intersections, checks,
   result);
@@ -15,10 +16,12 @@ returns a dict with
   included);
 * per noise level (``noise0``, ``noise1``, ``noise3``): the figures of
   :func:`nurbscan.detect.evaluate_detection` against the view's truth;
-* ``cpu_per_stage``: CPU time of one thread per stage on the 1x image (``detect_cpu.py
-  --json``, less disturbed by other work than the wall times), side by side with another
-  version of the code when ``NURBSCAN_BENCH_OLD_SRC`` names its ``src`` folder (with the
-  old version's total over this one's, both measured in the same run);
+* ``cpu_per_stage``: CPU time per stage on the 1x image, OpenCV on one thread, and the CPU
+  time of the detector's longest path (``path_cpu_s``: its halves of stages run side by
+  side in two threads, :mod:`nurbscan.detect._threads`) (``detect_cpu.py --json``, less
+  disturbed by other work than the wall times), side by side with another version of the
+  code when ``NURBSCAN_BENCH_OLD_SRC`` names its ``src`` folder (with the old version's
+  total over this one's, CPU and longest path, both measured in the same run);
 * ``noise1_jpeg95``: the same for the 1x images saved as JPEG at quality 95 (OpenCV's
   default 4:2:0 chroma subsampling, as cameras write) and read back as ``nurbscan detect``
   reads them (``detect_grid``'s ``chroma_subsampled``, from :func:`nurbscan.io.chroma_subsampled`).
@@ -96,6 +99,7 @@ def _timed_child(path: str) -> dict:
     import resource
 
     from nurbscan.detect import detect_grid
+    from nurbscan.detect._threads import critical_cpu, thread_count
 
     z = np.load(path)
     grid, white = z["grid"], z["white"]
@@ -106,13 +110,14 @@ def _timed_child(path: str) -> dict:
         detect_grid(grid, pattern, white)
         t1 = time.perf_counter()
         stages: dict = {}
-        c1 = time.process_time()
+        c1, p1 = time.process_time(), critical_cpu()
         detect_grid(grid, pattern, white, timings=stages)
         t2 = time.perf_counter()
-        c2 = time.process_time()
+        c2, p2 = time.process_time(), critical_cpu()
     peak = _peak_mb(resource)
     return {"seconds": t1 - t0, "seconds_warm": t2 - t1, "cpu_seconds_warm": c2 - c1,
-            "peak_mb": peak, "stages_warm_s": stages}
+            "path_cpu_seconds_warm": p2 - p1, "threads": thread_count(), "peak_mb": peak,
+            "stages_warm_s": stages}
 
 
 def figures(path: Path, jpeg: int | None = None) -> dict[str, float]:

@@ -1858,3 +1858,59 @@ def test_detect_options_round_trip_and_replace(pattern, view, result):
                             "families_s", "refine_s", "intersections_s", "checks_s",
                             "result_s"}
     assert all(t >= 0 for t in timings.values())
+
+
+def test_threads_give_the_same_result(pattern, view, result, monkeypatch):
+    """The stages' halves run side by side in threads (:mod:`nurbscan.detect._threads`):
+    every array of the result is bit-identical to the one computed in one thread, and the
+    detector uses more than one thread here (a machine with two CPUs)."""
+    from dataclasses import fields
+
+    from nurbscan.detect import _threads
+
+    g, w, _ = view
+    monkeypatch.setenv("NURBSCAN_DETECT_THREADS", "1")
+    assert _threads.thread_count() == 1
+    one = detect_grid(g, pattern, w)
+    monkeypatch.setenv("NURBSCAN_DETECT_THREADS", "2")
+    assert _threads.thread_count() == 2
+    calls = []
+    monkeypatch.setattr(_threads, "_timed", lambda fn, arg: calls.append(1) or
+                        (fn(arg), 0.0))
+    two = detect_grid(g, pattern, w)
+    assert len(calls) >= 20  # the jobs went through the pool's path
+    assert one.nlines > 100
+    for f in fields(one):
+        a, b = getattr(one, f.name), getattr(two, f.name)
+        if isinstance(a, np.ndarray):
+            assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), f.name
+    assert np.array_equal(one.x, result.x) and np.array_equal(one.cam, result.cam)
+
+
+def test_noise_level_over_the_valid_window_is_the_whole_images():
+    """noise_level filters the valid pixels' window only: on random masks, sizes and steps
+    the estimate is exactly the one of Immerkaer's mask over the whole image."""
+    import cv2
+
+    from nurbscan.detect.normalize import noise_level
+
+    k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+
+    def whole(signal, valid, step):
+        r = np.abs(cv2.filter2D(signal, -1, k, borderType=cv2.BORDER_REFLECT))
+        r = r[1:-1:step, 1:-1:step]
+        r = r if valid is None else r[valid[1:-1:step, 1:-1:step]]
+        return float(np.median(r) / (6.0 * 0.6745)) if r.size else float("nan")
+
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        h, w = rng.integers(5, 80, 2)
+        s = rng.random((h, w)).astype(np.float32)
+        v = np.zeros((h, w), bool)
+        y0, x0 = rng.integers(0, h), rng.integers(0, w)
+        v[y0:y0 + rng.integers(0, h), x0:x0 + rng.integers(0, w)] = rng.random() < 0.9
+        v &= rng.random((h, w)) < 0.7
+        step = int(rng.integers(1, 5))
+        for m in (v, None):
+            a, b = whole(s, m, step), noise_level(s, m, step)
+            assert a == b or (np.isnan(a) and np.isnan(b)), (h, w, step)

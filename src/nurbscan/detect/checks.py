@@ -17,6 +17,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ._threads import parallel_map
 from .chains import _along_across, chain_end_residual
 from .families import local_plane
 from .intersections import Intersections
@@ -243,12 +244,14 @@ def row_support(x: np.ndarray, y: np.ndarray, direction: np.ndarray, coord: np.n
     kind = np.zeros(n, np.int64)
     run = np.round(np.where(direction == 0, y, x)).astype(np.int64)
     acr = np.where(direction == 0, x, y)
-    for d in (0, 1):
+
+    def family(d):  # one family's support (the two side by side: _threads)
         idx = np.nonzero(direction == d)[0]
         o = idx[np.lexsort((acr[idx], run[idx]))]
         a, c, r = acr[o], coord[o], run[o]
         m = len(o)
         p = np.arange(m)
+        res_o, kind_o = np.full(m, np.nan), np.zeros(m, np.int64)
         for k, (i1, i2) in ((1, (-1, 1)), (2, (-2, -1)), (2, (1, 2))):
             j1, j2 = np.clip(p + i1, 0, m - 1), np.clip(p + i2, 0, m - 1)
             cc = np.stack([c[j1], c[p], c[j2]])
@@ -256,9 +259,13 @@ def row_support(x: np.ndarray, y: np.ndarray, direction: np.ndarray, coord: np.n
                   & (c[j1] < c[j2]) & (cc.max(0) - cc.min(0) <= span))
             with np.errstate(all="ignore"):
                 pred = a[j1] + (c - c[j1]) * (a[j2] - a[j1]) / (c[j2] - c[j1])
-            take = ok & (kind[o] == 0)
-            res[o[take]] = np.abs(a - pred)[take]
-            kind[o[take]] = k
+            take = ok & (kind_o == 0)
+            res_o[take] = np.abs(a - pred)[take]
+            kind_o[take] = k
+        return o, res_o, kind_o
+
+    for o, res_o, kind_o in parallel_map(family, (0, 1)):
+        res[o], kind[o] = res_o, kind_o
     return res, kind
 
 
@@ -342,11 +349,12 @@ def plane_support(x: np.ndarray, y: np.ndarray, direction: np.ndarray, coord: np
     out = np.full(len(x), np.nan)
     judge = np.zeros(len(x), bool)
     judge[np.arange(len(x)) if at is None else at] = True
-    for d in (0, 1):
+
+    def family(d):  # one family's distances (the two side by side: _threads)
         src = np.nonzero(direction == d)[0]
         dst = np.nonzero(judge & (direction == d))[0]
         if len(src) < k or not len(dst):
-            continue
+            return None
         dist, j = cKDTree(np.c_[x[src], y[src]]).query(np.c_[x[dst], y[dst]], k=3 * k,
                                                         distance_upper_bound=radius)
         jj = src[np.minimum(j, len(src) - 1)]
@@ -358,5 +366,9 @@ def plane_support(x: np.ndarray, y: np.ndarray, direction: np.ndarray, coord: np
         gn = np.hypot(g[:, 0], g[:, 1])
         valid = ((ok.sum(1) >= k // 2) & (spread > min_spread**2) & (rms <= max_rms)
                  & (gn > 0))
-        out[dst[valid]] = np.abs(pred[valid] - coord[dst][valid]) / gn[valid]
+        return dst[valid], np.abs(pred[valid] - coord[dst][valid]) / gn[valid]
+
+    for got in parallel_map(family, (0, 1)):
+        if got is not None:
+            out[got[0]] = got[1]
     return out

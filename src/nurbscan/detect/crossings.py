@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._threads import parallel_map
 from .chains import Chains
 from .decode import (
     band_crossings,
@@ -94,8 +95,9 @@ def _runs(chains: Chains, prep: Prepared, pattern, along_grid: bool, strict: np.
     sig = nrm.signal
     ratio = pattern.band / pattern.pitch
     acr = chains.across.astype(np.float64) if along_grid else None
-    parts, grid_rows = [], []
-    for d, name in ((0, "vertical"), (1, "horizontal")):
+
+    def direction(dn):  # the crossings of one direction
+        d, name = dn
         sel = np.nonzero((cls // 2) == d)[0]
         # runs, the position along them, and the pixel of run coordinate c near point i:
         # base[i] + (c - across[i]) * step[i]; wscale turns a width along the run into the
@@ -115,8 +117,7 @@ def _runs(chains: Chains, prep: Prepared, pattern, along_grid: bool, strict: np.
             step[:, d] = 1.0
             wscale = np.ones(len(sel))
         o, st = band_crossings(across, run, cls[sel] % 2, ratio, tol=WIDTH_TOL)
-        if along_grid and len(sel) >= 3:
-            grid_rows.append((d, sel[o], run[o], across[o]))  # o: by (run, across)
+        row = (d, sel[o], run[o], across[o]) if along_grid and len(sel) >= 3 else None
         a = across[o]
         mid = 0.5 * (a[st] + a[st + 1])
         qm = base[o[st]] + (mid - a[st])[:, None] * step[o[st]]
@@ -134,8 +135,13 @@ def _runs(chains: Chains, prep: Prepared, pattern, along_grid: bool, strict: np.
             lev = bilinear(sig, gap_mid, rr) if d == 0 else bilinear(sig, rr, gap_mid)
             dark = (lev < DARK_LEVEL) & (nxt == st + 2) & (run[o[nxt]] == run[o[st]])
             clean = dark | np.r_[False, dark[:-1]]
-        parts.append((sel, across, run, o, st, samples, clean, name, wscale))
-    return parts, tuple(grid_rows)
+        return (sel, across, run, o, st, samples, clean, name, wscale), row
+
+    # (the two directions side by side: _threads)
+    out = parallel_map(direction, ((0, "vertical"), (1, "horizontal")))
+    parts = [p for p, _ in out]
+    grid_rows = tuple(r for _, r in out if r is not None)  # o: by (run, across)
+    return parts, grid_rows
 
 
 def read_colours(chains: Chains, prep: Prepared, pattern, options) -> Reading:
@@ -155,10 +161,11 @@ def read_colours(chains: Chains, prep: Prepared, pattern, options) -> Reading:
     parts, grid_rows = _runs(chains, prep, pattern, along_grid, strict)
     allsamp = np.concatenate([q[5][q[6]] for q in parts]) if parts else np.zeros((0, 3))
     _, centres = classify_colours(allsamp, pattern.rgb)
-    vp, vi, vj, spacing, props, spans = [], [], [], [], [], []
     paired = np.zeros(len(px), bool)
     partner = np.full(len(px), -1, np.int64)  # the other edge point of a point's crossing
-    for sel, across, run, o, st, samples, clean, name, wscale in parts:
+
+    def votes(part):  # one direction's colours and votes (the two side by side: _threads)
+        sel, across, run, o, st, samples, clean, name, wscale = part
         codes, _ = classify_colours(samples, pattern.rgb, iterations=0, centres=centres)
         # the colour of a band is a property of its edge lines: vote over the clean crossings
         lr, lf = line[sel[o[st]]], line[sel[o[st + 1]]]
@@ -169,24 +176,34 @@ def read_colours(chains: Chains, prep: Prepared, pattern, options) -> Reading:
         cr, cf = lcode[lr], lcode[lf]
         ccode = np.where(cr < 0, cf, np.where((cf < 0) | (cf == cr), cr, -1))
         p_, i_, j_ = window_votes(o, st, run, across, ccode, pattern, name)
-        spans.append(window_spans(o, st, run, ccode, pattern))
+        span = window_spans(o, st, run, ccode, pattern)
         a = across[o]
-        props.append((lr, lf, st, run[o[st]], a[st], a[st + 1], lcode, name))
+        prop = (lr, lf, st, run[o[st]], a[st], a[st + 1], lcode, name)
         # a band narrower than min_width sigma: its two edges' blurred profiles overlap and
         # the fitted peaks move apart (outward bias), so its points are not kept
         both = strict[sel[o[st]]] & strict[sel[o[st + 1]]] & \
             ((a[st + 1] - a[st]) * wscale[o[st]] >= min_width * sigma)
-        paired[sel[o[st[both]]]] = True
-        paired[sel[o[st[both] + 1]]] = True
-        partner[sel[o[st[both]]]] = sel[o[st[both] + 1]]
-        partner[sel[o[st[both] + 1]]] = sel[o[st[both]]]
-        vp.append(sel[p_])
-        vi.append(i_)
-        vj.append(j_)
+        rising, falling = sel[o[st[both]]], sel[o[st[both] + 1]]
+        gaps = None
         if len(st) > 1:
             mids = 0.5 * (a[st] + a[st + 1])
             same = (st[1:] == st[:-1] + 2)
-            spacing.append((mids[1:] - mids[:-1])[same])
+            gaps = (mids[1:] - mids[:-1])[same]
+        return prop, span, rising, falling, sel[p_], i_, j_, gaps
+
+    vp, vi, vj, spacing, props, spans = [], [], [], [], [], []
+    for prop, span, rising, falling, p_, i_, j_, gaps in parallel_map(votes, parts):
+        props.append(prop)
+        spans.append(span)
+        paired[rising] = True
+        paired[falling] = True
+        partner[rising] = falling
+        partner[falling] = rising
+        vp.append(p_)
+        vi.append(i_)
+        vj.append(j_)
+        if gaps is not None:
+            spacing.append(gaps)
     sp = np.concatenate(spacing) if spacing else np.zeros(0)
     return Reading(props=tuple(props), paired=paired, partner=partner,
                    lcode=np.max(np.stack([q[6] for q in props]), axis=0),

@@ -59,6 +59,7 @@ import cv2
 import numpy as np
 
 from ..errors import NurbscanError
+from ._threads import parallel_map
 
 #: Edge classes: (direction, edge) -> class id.
 CLASSES = {("v", 0): 0, ("v", 1): 1, ("h", 0): 2, ("h", 1): 3}
@@ -113,9 +114,11 @@ def gradient(signal: np.ndarray, sigma: float, sigma_along: float | None = None
     g, dg = gaussian_kernels(sigma)
     ga, _ = gaussian_kernels(sa)
     s = np.ascontiguousarray(signal, dtype=np.float32)
-    # cv2.sepFilter2D correlates: flip the odd kernel to convolve
-    gx = cv2.sepFilter2D(s, cv2.CV_32F, dg[::-1].copy(), ga, borderType=cv2.BORDER_REFLECT)
-    gy = cv2.sepFilter2D(s, cv2.CV_32F, ga, dg[::-1].copy(), borderType=cv2.BORDER_REFLECT)
+    # cv2.sepFilter2D correlates: flip the odd kernel to convolve (the two side by side:
+    # _threads)
+    gx, gy = parallel_map(lambda k: cv2.sepFilter2D(s, cv2.CV_32F, *k,
+                                                    borderType=cv2.BORDER_REFLECT),
+                          ((dg[::-1].copy(), ga), (ga, dg[::-1].copy())))
     return gx, gy
 
 
@@ -267,13 +270,16 @@ def across_operators(theta_v: np.ndarray, theta_h: np.ndarray, shape: tuple[int,
     tv = np.where(theta_v > np.pi / 2, theta_v - np.pi, theta_v)  # n_v towards +x
     nv = np.stack([np.cos(tv), np.sin(tv)])
     nh = np.stack([np.cos(theta_h), np.sin(theta_h)])  # towards +y (theta_h in [0, pi))
-    out = []
-    for n_own, n_other in ((nv, nh), (nh, nv)):
+
+    def operator(normals):  # one family's (the two side by side: _threads)
+        n_own, n_other = normals
         m = np.stack([-n_other[1], n_other[0]])  # the other family's edge tangent
         dot = (m * n_own).sum(0)
         m = np.where(dot < 0, -m, m)
         a = m / np.maximum(np.abs(dot), 0.25)
-        out.append(tuple(_tiles_to_pixels(c, (h, w)) for c in a))
+        return tuple(_tiles_to_pixels(c, (h, w)) for c in a)
+
+    out = parallel_map(operator, ((nv, nh), (nh, nv)))
     return out[0], out[1]
 
 
@@ -498,8 +504,8 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         strong &= valid
     strong[:b] = strong[-b:] = False
     strong[:, :b] = strong[:, -b:] = False
-    dv, dh = gx, gy
     av = ah = None  # the image axes
+    oblique_ops = False
     if families:
         # the gradient's components along the two families' local normals
         sy, sx = np.nonzero(strong)
@@ -509,11 +515,13 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         # with the doubled-angle vectors interpolated bilinearly between the tiles
         mag2, diff2, prod2 = gxs * gxs + gys * gys, gxs * gxs - gys * gys, 2.0 * gxs * gys
         del gxs, gys
-        comp = []
-        for t in (tv, th):
+
+        def component(t):  # one family's (the two side by side: _threads)
             c2, s2 = (_tiles_to_pixels(f(2 * t), (h, w))[sy, sx] for f in (np.cos, np.sin))
             r = np.hypot(c2, s2)
-            comp.append(mag2 + (diff2 * c2 + prod2 * s2) / np.where(r > 0, r, 1.0))
+            return mag2 + (diff2 * c2 + prod2 * s2) / np.where(r > 0, r, 1.0)
+
+        comp = parallel_map(component, (tv, th))
         vmask = np.zeros((h, w), bool)
         hmask = np.zeros((h, w), bool)
         d2 = dominance * dominance
@@ -532,10 +540,7 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
             # other family's edges (the peaks of g_x, g_y move where a tilted crossing band's
             # edge adds to them)
             av, ah = across_operators(tv, th, (h, w))
-            dv = gx * av[0]
-            dv += gy * av[1]
-            dh = gx * ah[0]
-            dh += gy * ah[1]
+            oblique_ops = True
     else:
         vmask = strong & (np.abs(gx) >= dominance * np.abs(gy))
         hmask = strong & (np.abs(gy) > dominance * np.abs(gx))
@@ -548,17 +553,21 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
             return np.repeat(np.eye(2, dtype=np.float32)[axis][None, :], len(iy), axis=0)
         return np.stack([a[0][iy, ix], a[1][iy, ix]], axis=1)
 
-    ax = np.abs(dv)
-    ay = np.abs(dh)
-
     def ln(a):  # the log-parabola samples, at the peaks only
         return np.log(np.maximum(a, 1e-6))
 
     balanced = fit_line == "balanced" and av is not None
     mix_var = sigma * sigma + camera_blur * camera_blur + 1.0 / 12.0
-    out = []
-    for axis, mask, amp, der, a_own, a_other, cls0 in ((0, vmask, ax, dv, av, ah, 0),
-                                                        (1, hmask, ay, dh, ah, av, 2)):
+
+    def family(job):  # one family's points (the two side by side: _threads)
+        axis, mask, a_own, a_other, cls0 = job
+        # the family's own gradient component (the plain derivative without the operators)
+        if oblique_ops:
+            der = gx * a_own[0]
+            der += gy * a_own[1]
+        else:
+            der = gx if axis == 0 else gy
+        amp = np.abs(der)
         # maxima of the family's derivative along the row (vertical) or column (horizontal)
         c = np.zeros((h, w), bool)
         if axis == 0:
@@ -587,8 +596,10 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         jx, jy = ix + ox, iy + oy  # (the image's pixels)
         x, y = (jx + d, jy + d * sl) if axis == 0 else (jx + d * sl, jy + d)
         ratio = vratio(iy, ix) if axis == 0 else 1.0 / np.maximum(vratio(iy, ix), 1e-10)
-        out.append((x, y, jx, jy, np.where(der[iy, ix] > 0, cls0, cls0 + 1), amp[iy, ix],
-                    gx[iy, ix], gy[iy, ix], ratio, operator(a_own, axis, iy, ix), sl))
+        return (x, y, jx, jy, np.where(der[iy, ix] > 0, cls0, cls0 + 1), amp[iy, ix],
+                gx[iy, ix], gy[iy, ix], ratio, operator(a_own, axis, iy, ix), sl)
+
+    out = parallel_map(family, ((0, vmask, av, ah, 0), (1, hmask, ah, av, 2)))
     cat = [np.concatenate([o[k] for o in out]) for k in range(11)]
     return EdgePoints(x=cat[0].astype(np.float64), y=cat[1].astype(np.float64),
                       ix=cat[2].astype(np.int32), iy=cat[3].astype(np.int32),
@@ -621,8 +632,9 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     Parameters
     ----------
     channels : sequence of 3 ndarray (H, W) float32
-        Normalised colour channels (indexed once each, in order: a lazy sequence such as
-        :meth:`~nurbscan.detect.normalize.Normalised.lazy_planes` holds one at a time).
+        Normalised colour channels (indexed once each, from up to two threads at once,
+        :mod:`~nurbscan.detect._threads`: a lazy sequence such as
+        :meth:`~nurbscan.detect.normalize.Normalised.lazy_planes` holds one per thread).
     ix, iy : (N,) int
         Edge pixels; ``cls`` (N,) their classes (0..3, :data:`CLASSES`).
     colour : (N, 3) bool
@@ -685,23 +697,26 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     else:
         channels = _Cropped(channels, rows, cols)
     jx, jy = ix - cols.start, iy - rows.start
-    taps = None
-    for c in range(3):
-        img = channels[c]  # (a lazy sequence computes each plane here: one at a time)
-        if taps is None:
-            # (N, 3): the samples along each point's fit line, from taps shared by the images
-            taps = line_taps(jx, jy, np.where(vert, 0, 1), sl, steps, img.shape)
+    # (N, 3): the samples along each point's fit line, from taps shared by the images
+    taps = line_taps(jx, jy, np.where(vert, 0, 1), sl, steps,
+                     (rows.stop - rows.start, cols.stop - cols.start))
+
+    def channel(c):  # one channel's profiles (the channels side by side: _threads)
+        img = channels[c]  # (a lazy sequence computes each plane here)
         gx, gy = gradient(img, sigma, sigma_along)
         del img
         prof = sample_taps(gx, *taps) * ux + sample_taps(gy, *taps) * uy
         cx, cy = gx[jy, jx], gy[jy, jx]
+        del gx, gy
         along = nx * cy - ny * cx
         normal_d = nx * cx + ny * cy
-        mag.append(prof[:, 1])
         ok = colour[:, c] & (np.abs(along) <= clean * np.abs(normal_d)) & (prof[:, 1] > 0)
+        return prof, ok
+
+    for prof, ok in parallel_map(channel, range(3)):  # (summed in the channels' order)
+        mag.append(prof[:, 1])
         acc += np.where(ok[:, None], prof, 0.0)
         used += ok
-        del gx, gy
     big = np.max(np.stack(mag, 1), axis=1)
     peak = (used > 0) & (acc[:, 1] > 0.3 * big) & (acc[:, 1] >= acc[:, 0]) \
         & (acc[:, 1] >= acc[:, 2]) & (acc.min(1) > 0)

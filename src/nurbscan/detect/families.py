@@ -16,6 +16,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ._threads import parallel_map
 from .chains import Chains
 from .crossings import Reading
 from .labels import (
@@ -168,14 +169,19 @@ def epipolar_coordinates(label, x, y, cls, line, pattern, other_coordinate, radi
         if len(m):
             other[m] = other_coordinate(np.c_[x[m], y[m]], name, coord[m])
     pred = np.full(len(x), np.nan)
-    for dd in (0, 1):
+
+    def family(dd):  # one family's predictions (the two side by side: _threads)
         src = np.nonzero(known & (d == 1 - dd) & np.isfinite(other))[0]
         dst = np.nonzero(d == dd)[0]
         dst = dst[dst % stride == 0]
         if len(src) < k or not len(dst):
-            continue
+            return None
         dst, p, rms, _, _ = _plane_at(x, y, other, src, dst, k, radius)
-        pred[dst] = np.where(rms <= max_rms, p, np.nan)
+        return dst, np.where(rms <= max_rms, p, np.nan)
+
+    for out in parallel_map(family, (0, 1)):
+        if out is not None:
+            pred[out[0]] = out[1]
     return pred
 
 
@@ -209,16 +215,21 @@ def family_coordinates(label, x, y, cls, line, pattern, radius: float, k: int = 
     known = lab >= 0
     coord = point_coordinates(lab, cls, pattern)
     pred = np.full(len(x), np.nan)
-    for dd in (0, 1):
+
+    def family(dd):  # one family's predictions (the two side by side: _threads)
         src = np.nonzero(known & (d == dd))[0]
         src = src[src % stride == 0]
         dst = np.nonzero(~known & (d == dd))[0]
         if len(src) < k or not len(dst):
-            continue
+            return None
         dst, p, rms, lo, hi = _plane_at(x, y, coord, src, dst, k, radius)
         mg = margin[dst] if np.ndim(margin) else margin
         ok = (rms <= max_rms) & (p >= lo + mg) & (p <= hi - mg)
-        pred[dst] = np.where(ok, p, np.nan)
+        return dst, np.where(ok, p, np.nan)
+
+    for out in parallel_map(family, (0, 1)):
+        if out is not None:
+            pred[out[0]] = out[1]
     return pred
 
 

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from ..errors import NurbscanError
+from ._threads import parallel_map
 from .decode import band_crossings
 from .edges import detect_edge_points
 from .normalize import LUMA_601, Normalised, noise_level, normalize
@@ -65,11 +66,12 @@ def prepare(image, white, pattern, options, sigma: float | None = None,
     :class:`NoGrid` for a black or overexposed photograph.
     """
     gamma = options.gamma
-    lin = as_float_planes(image, gamma=gamma)
+    # (the photograph and the white image side by side: _threads)
+    lin, wl = parallel_map(lambda iw: None if iw[0] is None else
+                           as_float_planes(iw[0], iw[1], gamma=gamma),
+                           ((image, "image"), (white, "white image")))
     h, w = lin[0].shape
-    wl = None
     if white is not None:
-        wl = as_float_planes(white, "white image", gamma=gamma)
         if wl[0].shape != lin[0].shape:
             raise NurbscanError(f"white image: size {wl[0].shape[1]}x{wl[0].shape[0]} does "
                                 f"not match the grid image's {w}x{h}")
