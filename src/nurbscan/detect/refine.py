@@ -16,7 +16,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ._threads import parallel_map
 from .chains import SIGMA_ALONG, Chains, _along_across, chain_end_residual, chain_tails
 from .crossings import Reading
 from .edges import refine_by_channels
@@ -129,17 +128,13 @@ def select_points(chains: Chains, reading: Reading, labels: Labels, prep: Prepar
         # near a crossing band's edge the row (column) profile is disturbed by the corner
         w, h = prep.size
         ix, iy = chains.ix, chains.iy
-
-        def clear(d):  # one family's points clear of the other's (side by side: _threads)
+        for d in (0, 1):
             mask = np.full((h, w), 255, np.uint8)
             o_ = (cls // 2) == 1 - d
             mask[iy[o_], ix[o_]] = 0
             dist_o = cv2.distanceTransform(mask, cv2.DIST_L2, 3)
             sel_d = (cls // 2) == d
-            return sel_d, dist_o[iy[sel_d], ix[sel_d]] >= CROSSING_MARGIN
-
-        for sel_d, ok in parallel_map(clear, (0, 1)):
-            paired[sel_d] &= ok
+            paired[sel_d] &= dist_o[iy[sel_d], ix[sel_d]] >= CROSSING_MARGIN
     good &= np.bincount(line[paired], minlength=nlines) >= options.min_paired
     new_id = np.cumsum(good) - 1
     keep_unpaired = KEEP_UNPAIRED and prep.fine
