@@ -10,8 +10,15 @@ benchmark skips with the reason when the set is absent. Figures:
   it, OpenCV's ``calibrateCamera`` with its 5 distortion terms on the same corners; and the
   camera RMS left in the joint bundle with the projector;
 * projector reprojection RMS (projector px, per decoded coordinate: each centre-line point
-  fixes one projector coordinate), per pose;
-* leave-one-pose-out: for each pose, the rig calibrated from the 7 others; the pose's decoded
+  fixes one projector coordinate), per pose; the board's white part fitted as a smooth height
+  field shared by the poses (:mod:`nurbscan.calibrate.surface`: the white board is not the
+  plane of the printed corners), and beside it the same calibration with the white part
+  taken for that plane;
+* leave-one-pose-out: for each pose, the rig (and the white part's shape) calibrated from the
+  7 others; the held-out pose's projector RMS over all its decoded points on the white part,
+  its board pose fitted to its corners and those points with the rig and shape fixed (the
+  figure that tells a shape that predicts a new pose from one that only absorbs residuals),
+  with and without the shape; the pose's decoded
   centre-line points on the board's white part are triangulated (camera ray meets the light
   plane of the line's projector coordinate, :func:`nurbscan.calibrate.triangulate_edges`);
   reported: the RMS distance of those points to their best plane (mm: the flatness of a real
@@ -224,6 +231,46 @@ def residual_pictures(res, cache: dict, out: Path) -> list[Path]:
 
 
 # ------------------------------------------------------------------------------ the figures
+def held_out_projector(res, corners: np.ndarray, det, area: np.ndarray) -> tuple[float, int]:
+    """Projector RMS (projector px) of a pose left out of the calibration ``res``, and the
+    number of its observations: all its decoded centre-line points on the board's white part
+    (labels checked against its board homography); its board pose (6 unknowns) fitted, with
+    the rig and the white part's shape fixed, first to its corners alone, then to its corners
+    and those points (soft-L1 loss, scale 2 projector px)."""
+    from scipy.optimize import least_squares
+
+    from nurbscan.calibrate import Target
+    from nurbscan.calibrate._bundle import CornerObs, ProjObs, camera_residuals, projector_residuals
+    from nurbscan.calibrate.camera import board_points
+    from nurbscan.calibrate.pipeline import consistent_labels, edge_observations, oriented_corners
+
+    target = Target(6, 9, 24.0, margin=None)
+    dc = tuple(res.figures["pixel_pitch_mm"]["camera"])
+    dp = tuple(res.figures["pixel_pitch_mm"]["projector"])
+    c = oriented_corners(corners, target)
+    cobs = CornerObs(board_points((6, 9), 24.0), c, np.zeros(len(c), np.int64))
+
+    def cam(p):
+        return camera_residuals(res.kc, p[None, :3], p[None, 3:], cobs, *dc).ravel()
+
+    starts = [least_squares(cam, np.r_[r, t], method="lm") for r, t in
+              zip(res.rvecs, res.tvecs, strict=True)]
+    p0 = min(starts, key=lambda s: s.cost).x
+    o = edge_observations(det, res.kc, p0[:3], p0[3:], target, 0, dc, 10**9, white_area=area)
+    good = consistent_labels(o, det, res.kc, p0[None, :3], p0[None, 3:], dc)
+    o = ProjObs(o.pixels[good], o.value[good], o.axis[good], o.view[good], o.sign[good])
+
+    def prj(p):
+        return projector_residuals(res.kc, p[None, :3], p[None, 3:], res.kp, res.rp, res.tp, o,
+                                   dc, dp, None, res.board_surface)
+
+    fit = least_squares(lambda p: np.nan_to_num(np.r_[cam(p), prj(p)], nan=10.0), p0,
+                        loss="soft_l1", f_scale=2.0)
+    r = prj(fit.x)
+    r = r[np.isfinite(r)]
+    return float(np.sqrt(np.mean(r**2))), int(len(r))
+
+
 def calibration_figures(scans: dict, cache: dict) -> tuple[dict, object]:
     import cv2
 
@@ -235,6 +282,10 @@ def calibration_figures(scans: dict, cache: dict) -> tuple[dict, object]:
         res = calibrate_scan(scans["calib"] / "calibration", pose_cache=cache,
                              max_points_per_view=POINTS)
     t_cal = time.perf_counter() - t0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        flat = calibrate_scan(scans["calib"] / "calibration", pose_cache=cache,
+                              max_points_per_view=POINTS, board_surface=False)
     CALIB_OUT.mkdir(parents=True, exist_ok=True)
     write_outputs(res, CALIB_OUT / "calib.json")
     residual_pictures(res, cache, CALIB_OUT)
@@ -255,6 +306,18 @@ def calibration_figures(scans: dict, cache: dict) -> tuple[dict, object]:
         "camera RMS, OpenCV calibrateCamera 5 terms, same corners (px)": float(rms5),
         "camera RMS in the joint bundle (px)": f["camera_rms_px"],
         "projector RMS per decoded coordinate (projector px)": f["projector_rms_px"],
+        "projector RMS, white part taken for the corners' plane (projector px)":
+            flat.figures["projector_rms_px"],
+        "camera RMS in the joint bundle, white part taken for the corners' plane (px)":
+            flat.figures["camera_rms_px"],
+        "white part's height over the corners' plane, RMS (mm)":
+            f["board_surface"]["height_rms_mm"],
+        "white part's height, range (mm)":
+            f"{f['board_surface']['height_min_mm']:.2f} .. "
+            f"{f['board_surface']['height_max_mm']:.2f}",
+        "white part's shape: knot spacing (mm) / coefficients":
+            f"{f['board_surface']['knot_spacing_mm']:g} / "
+            f"{f['board_surface']['coefficients']}",
         "projector max residual (projector px)": f["projector_max_px"],
         "projector observations": f["projector_observations"],
         "projector outliers left out": f["projector_outliers"],
@@ -279,7 +342,7 @@ def leave_one_out(scans: dict, cache: dict, poses=tuple(range(1, 9))) -> dict:
 
     rows = {}
     keys = {int(Path(k[0]).stem.split("_")[1]): k for k in cache}
-    all_sq, all_plane = [], []
+    all_sq, all_plane, held = [], [], {"shape": [], "flat": []}
     for k in poses:
         shape, corners, det, area = cache[keys[k]]
         if corners is None:
@@ -289,6 +352,13 @@ def leave_one_out(scans: dict, cache: dict, poses=tuple(range(1, 9))) -> dict:
             warnings.simplefilter("ignore")
             res = calibrate_scan(scans["calib"] / "calibration", exclude=(k,), pose_cache=cache,
                                  max_points_per_view=POINTS)
+            flat = calibrate_scan(scans["calib"] / "calibration", exclude=(k,),
+                                  pose_cache=cache, max_points_per_view=POINTS,
+                                  board_surface=False)
+        hp = held_out_projector(res, corners, det, area)
+        hf = held_out_projector(flat, corners, det, area)
+        held["shape"].append(hp)
+        held["flat"].append(hf)
         px, value, axis, _ = _white_points(det, area)
         X = triangulate_edges(res.rig, px, value, axis)
         ok = np.all(np.isfinite(X), axis=1)
@@ -303,6 +373,8 @@ def leave_one_out(scans: dict, cache: dict, poses=tuple(range(1, 9))) -> dict:
         all_sq.append(sq)
         all_plane.append(d)
         rows[f"pose {k:02d}"] = {
+            "held-out projector RMS (projector px), white part's shape / plane":
+                f"{hp[0]:.3f} / {hf[0]:.3f} ({hp[1]} points)",
             "points": int(good.sum()), "gross points (> 6 sigma)": int((~good).sum()),
             "plane RMS (mm)": float(np.sqrt(np.mean(d**2))),
             "plane RMS, vertical / horizontal lines alone (mm)": " / ".join(
@@ -318,7 +390,14 @@ def leave_one_out(scans: dict, cache: dict, poses=tuple(range(1, 9))) -> dict:
         }
     sq = np.concatenate(all_sq)
     d = np.concatenate(all_plane)
+    def pooled(v):
+        return float(np.sqrt(sum(r * r * n for r, n in v) / sum(n for _, n in v)))
+
     rows["all poses"] = {
+        "held-out projector RMS, white part's shape fitted (projector px)": pooled(
+            held["shape"]),
+        "held-out projector RMS, white part taken for the corners' plane (projector px)":
+            pooled(held["flat"]),
         "plane RMS (mm)": float(np.sqrt(np.mean(d**2))),
         "square error mean (mm)": float(sq.mean() - 24.0),
         "square error RMS (mm)": float(np.sqrt(np.mean((sq - 24.0)**2))),

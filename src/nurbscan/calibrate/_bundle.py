@@ -19,6 +19,11 @@ Residuals, in pixels of the device that observes them:
   projected into the projector and its coordinate ``a`` compared with ``v`` (1 per observation:
   a band edge fixes only the coordinate across it; a grid intersection gives two observations).
 
+A printed board's white part may be given a shape (:mod:`nurbscan.calibrate.surface`): the
+camera rays of the projector observations then meet that height field over the board plane,
+whose B-spline coefficients are unknowns shared by all views, with a roughness penalty on
+their second differences as extra residual rows.
+
 Solved with :func:`scipy.optimize.least_squares` (trust-region reflective, exact solves) and
 a grouped central-difference Jacobian: a view's pose affects only its own residuals, so the
 Jacobian needs 2 (6 + 16) function evaluations whatever the view count.
@@ -33,6 +38,7 @@ from scipy.optimize import least_squares
 
 from ..errors import NurbscanError
 from ._tsai import back_project_local, project_local, rotmats
+from .surface import BoardSurface, surface_points
 
 
 @dataclass
@@ -66,6 +72,7 @@ class BundleState:
     rp: np.ndarray | None = None
     tp: np.ndarray | None = None
     shrink: np.ndarray | None = None  # (2,) band-edge bias per axis, projector px
+    surface: BoardSurface | None = None  # the board's white part (None: the corners' plane)
     cost: dict = field(default_factory=dict)
 
 
@@ -88,14 +95,21 @@ def plane_points(kc, rvecs, tvecs, pixels, view, dx, dy) -> np.ndarray:
 
 
 def projector_residuals(kc, rvecs, tvecs, kp, rp, tp, obs: ProjObs, dc, dp,
-                        shrink=None) -> np.ndarray:
+                        shrink=None, surface: BoardSurface | None = None,
+                        offset: float = 0.0) -> np.ndarray:
     """Projector-coordinate residuals (K,) in projector px (see the module docstring).
 
     ``shrink`` (2,): a detected band-edge bias per axis (x, y), in projector px: rising edges
     read ``-shrink``, falling edges ``+shrink`` off their true coordinate (the edge detector
     narrows or widens the bands symmetrically); it is subtracted from the residual.
+    ``surface``: the shape of the board's white part (:func:`surface_points`; ``offset`` mm
+    added to its heights); None: the board plane.
     """
-    X = plane_points(kc, rvecs, tvecs, obs.pixels, obs.view, *dc)
+    if surface is None:
+        X = plane_points(kc, rvecs, tvecs, obs.pixels, obs.view, *dc)
+    else:
+        X = surface_points(kc, rvecs, tvecs, obs.pixels, obs.view, *dc, surface,
+                           offset=offset)[0]
     xp = X @ rotmats(rp).T + tp
     uv = project_local(xp, kp, *dp)
     r = np.take_along_axis(uv, obs.axis[:, None], axis=1)[:, 0] - obs.value
@@ -114,6 +128,8 @@ def run_bundle(
     proj_weight: float = 1.0,
     max_nfev: int = 200,
     corner_weight: np.ndarray | None = None,
+    surface: BoardSurface | None = None,
+    surface_weight: float = 0.3,
 ) -> BundleState:
     """Minimise the camera (and projector) reprojection residuals over all unknowns.
 
@@ -136,6 +152,12 @@ def run_bundle(
     corner_weight : ndarray, shape (P,), optional
         Weight of each view's corner residuals (default 1 for all), e.g. the inverse of the
         view's corner error scale relative to the others' (inverse-variance weighting).
+    surface : BoardSurface, optional
+        Fit the shape of the board's white part, starting from these coefficients (only
+        with ``proj``): its coefficients are unknowns shared by all views.
+    surface_weight : float
+        Weight of the roughness rows ``surface_weight * D c`` (projector px per mm of second
+        difference of the coefficients, ``D`` :meth:`BoardSurface.roughness`).
 
     Returns
     -------
@@ -149,6 +171,9 @@ def run_bundle(
     fit_sh = use_p and proj.sign is not None and bool(np.any(proj.sign != 0))
     n_int = 5 + (10 + (0 if fix_sx_proj else 1) + (2 if fit_sh else 0) if use_p else 0)
     kp0 = None if state.kp is None else np.asarray(state.kp, float)
+    surf = surface if use_p else None
+    n_pose = n_int + 6 * P
+    D = None if surf is None else surf.roughness() * float(surface_weight)
 
     def unpack(x):
         kc = x[:5]
@@ -164,8 +189,11 @@ def run_bundle(
             sh = x[i + 6:i + 8] if fit_sh else np.zeros(2)
         else:
             kp = rp = tp = sh = None
-        poses = x[n_int:].reshape(P, 6)
+        poses = x[n_int:n_pose].reshape(P, 6)
         return kc, kp, rp, tp, sh, poses[:, :3], poses[:, 3:]
+
+    def shape_of(x):
+        return None if surf is None else surf.with_coef(x[n_pose:])
 
     x0 = [np.asarray(state.kc, float)]
     if use_p:
@@ -174,6 +202,8 @@ def run_bundle(
         if fit_sh:
             x0.append(np.zeros(2) if state.shrink is None else np.asarray(state.shrink, float))
     x0.append(np.hstack([state.rvecs, state.tvecs]).ravel())
+    if surf is not None:
+        x0.append(np.asarray(surf.coef, float))
     x0 = np.concatenate(x0)
 
     M = len(corners.view)
@@ -188,8 +218,11 @@ def run_bundle(
         if cw is not None:
             r = r * cw
         if use_p:
-            rpj = projector_residuals(kc, rv, tv, kp, rp, tp, proj, dc, dp, sh) * proj_weight
+            rpj = projector_residuals(kc, rv, tv, kp, rp, tp, proj, dc, dp, sh,
+                                      shape_of(x)) * proj_weight
             r = np.concatenate([r, rpj])
+        if D is not None:
+            r = np.concatenate([r, D @ x[n_pose:]])
         return np.nan_to_num(r, nan=1e3)
 
     # Finite-difference Jacobian by column groups (Curtis, Powell and Reid 1974): a view's pose
@@ -201,11 +234,26 @@ def run_bundle(
     if use_p:
         kps = [s_ for s_, k in zip(ks, "fccsk", strict=True) if not (fix_sx_proj and k == "s")]
         steps[5:n_int] = kps + [1e-7] * 3 + [1e-5] * 3 + ([1e-4] * 2 if fit_sh else [])
-    steps[n_int:] = np.tile([1e-7] * 3 + [1e-5] * 3, P)
+    steps[n_int:n_pose] = np.tile([1e-7] * 3 + [1e-5] * 3, P)
     vrows = np.concatenate([np.repeat(corners.view, 2)] + ([proj.view] if use_p else []))
+    n_pen = 0 if D is None else D.shape[0]
+
+    def surface_columns(x):
+        """(K, S) Jacobian of the projector residuals in the surface coefficients: the
+        derivative of each residual in the height under its point (central difference of a
+        common height offset) times the basis there; the point's drift in x, y with the
+        height is of second order."""
+        kc, kp, rp, tp, sh, rv, tv = unpack(x)
+        s_ = shape_of(x)
+        eps = 1e-3
+        g = (projector_residuals(kc, rv, tv, kp, rp, tp, proj, dc, dp, sh, s_, eps)
+             - projector_residuals(kc, rv, tv, kp, rp, tp, proj, dc, dp, sh, s_, -eps)) / (2 * eps)
+        xy = surface_points(kc, rv, tv, proj.pixels, proj.view, *dc, s_)[1]
+        B = s_.basis(np.nan_to_num(xy))
+        return B.multiply(np.nan_to_num(g)[:, None] * proj_weight).toarray()
 
     def jac(x):
-        J = np.zeros((2 * M + K, len(x)))
+        J = np.zeros((2 * M + K + n_pen, len(x)))
         for j in range(n_int):
             e = np.zeros(len(x))
             e[j] = steps[j]
@@ -215,7 +263,10 @@ def run_bundle(
             cols = n_int + 6 * np.arange(P) + j
             e[cols] = steps[cols]
             d = (fun(x + e) - fun(x - e)) / (2 * steps[cols][0])
-            J[np.arange(len(vrows)), n_int + 6 * vrows + j] = d
+            J[np.arange(len(vrows)), n_int + 6 * vrows + j] = d[:len(vrows)]
+        if surf is not None:
+            J[2 * M:2 * M + K, n_pose:] = surface_columns(x)
+            J[2 * M + K:, n_pose:] = D.toarray()
         return J
 
     res = least_squares(fun, x0, jac=jac, x_scale="jac", method="trf", tr_solver="exact",
@@ -226,11 +277,11 @@ def run_bundle(
     out = BundleState(kc=kc.copy(), rvecs=rv.copy(), tvecs=tv.copy(),
                       kp=None if kp is None else np.array(kp), rp=None if rp is None else rp.copy(),
                       tp=None if tp is None else tp.copy(),
-                      shrink=None if sh is None else sh.copy())
+                      shrink=None if sh is None else sh.copy(), surface=shape_of(res.x))
     rc = camera_residuals(kc, rv, tv, corners, *dc)
     out.cost["camera_rms_px"] = float(np.sqrt(np.nanmean(np.sum(rc**2, axis=1))))
     if use_p:
-        rpj = projector_residuals(kc, rv, tv, kp, rp, tp, proj, dc, dp, sh)
+        rpj = projector_residuals(kc, rv, tv, kp, rp, tp, proj, dc, dp, sh, out.surface)
         out.cost["projector_rms_px"] = float(np.sqrt(np.nanmean(rpj**2)))
     out.cost["nfev"] = int(res.nfev)
     return out

@@ -14,7 +14,10 @@ Steps (method.md section 4; issue 6):
    (:mod:`nurbscan.calibrate.projector`); initialisation, then the joint bundle of camera,
    projector and board poses, with a second pass after rejecting gross outliers (> 5 sigma).
    The detector's symmetric band-edge bias (bands read narrower or wider than drawn) is
-   fitted as two nuisance parameters and reported (``edge_bias_projector_px``).
+   fitted as two nuisance parameters and reported (``edge_bias_projector_px``). On a printed
+   target the white part where the grid is read is given a shape, a smooth height field over
+   the board plane shared by all poses and fitted in the bundle
+   (:mod:`nurbscan.calibrate.surface`; reported as ``board_surface``).
 4. Turntable: axis from the turntable views (:mod:`nurbscan.calibrate.turntable`); its point
    is placed on the table top, the plane of the board's lower edge (the target stands on the
    table).
@@ -49,6 +52,7 @@ from ._tsai import back_project_local, project_local, rotmats
 from .board import outside_field, white_area
 from .camera import board_points, calibrate_camera, detect_chessboard
 from .projector import board_frame_points, init_projector
+from .surface import BoardSurface
 from .turntable import fit_turntable
 
 #: Sensor of the default camera (3072 px of 2.3 um) and micromirror array of the default
@@ -138,6 +142,7 @@ class CalibrationResult:
     proj_pixels: list[np.ndarray]  # per view (K, 2) camera px
     warnings: list[str] = field(default_factory=list)
     turntable_calibrated: bool = True  # False: only free poses; rig.turntable a placeholder
+    board_surface: BoardSurface | None = None  # the white part's shape (printed targets)
 
     def rig_dict(self) -> dict:
         """The rig's JSON (:meth:`nurbscan.camera.Rig.to_dict`); an uncalibrated turntable is
@@ -435,7 +440,10 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
                    workers: int = 1, require_all: bool = False,
                    pose_cache: dict | None = None,
                    projector_weight: float = 1.0,
-                   allow_outside: bool = False) -> CalibrationResult:
+                   allow_outside: bool = False,
+                   board_surface: bool | None = None,
+                   surface_spacing: float | None = None,
+                   surface_weight: float = 0.3) -> CalibrationResult:
     """Calibrate camera, projector and turntable from a scan's calibration images.
 
     Parameters
@@ -467,6 +475,14 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
         The caller's store of what was read from each pose's images (corners, decoded grid,
         white area), keyed by the image paths: filled on the first call and reused by later
         calls with the same dict (e.g. leave-one-pose-out calibrations of one set).
+    board_surface : bool, optional
+        Fit the shape of the board's white part (:mod:`nurbscan.calibrate.surface`) instead
+        of taking it for the plane of the corners; default: for a printed target (its white
+        part found in the images), not for nurbscan's own exact target.
+    surface_spacing : float, optional
+        Knot spacing of that surface, mm (default: one square of the target).
+    surface_weight : float
+        Weight of its roughness penalty (:func:`nurbscan.calibrate._bundle.run_bundle`).
 
     Returns
     -------
@@ -587,10 +603,16 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
                                    (pattern.width, pattern.height))
     st = BundleState(kc=cam.kc, rvecs=cam.rvecs, tvecs=cam.tvecs, kp=kp0, rp=rp0, tp=tp0)
     cw = corner_weights(cam.per_view_rms)
+    surface = None
+    if (target.printed if board_surface is None else board_surface) and len(proj.view):
+        xy = board_frame_points(cam.kc, cam.rvecs, cam.tvecs, proj, *dc)
+        surface = BoardSurface.spanning(xy[np.all(np.isfinite(xy), axis=1)],
+                                        surface_spacing or target.square)
     st = run_bundle(st, cam.corners, proj, dc, dp, corner_weight=cw,
-                    proj_weight=projector_weight)
+                    proj_weight=projector_weight, surface=surface,
+                    surface_weight=surface_weight)
     r = projector_residuals(st.kc, st.rvecs, st.tvecs, st.kp, st.rp, st.tp, proj, dc, dp,
-                            st.shrink)
+                            st.shrink, st.surface)
     sigma = 1.4826 * np.median(np.abs(r))
     good = np.abs(r) < max(5 * sigma, 0.05)
     n_out = int(np.sum(~good))
@@ -598,7 +620,8 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
         proj = ProjObs(proj.pixels[good], proj.value[good], proj.axis[good], proj.view[good],
                        proj.sign[good])
         st = run_bundle(st, cam.corners, proj, dc, dp, corner_weight=cw,
-                    proj_weight=projector_weight)
+                        proj_weight=projector_weight, surface=st.surface,
+                        surface_weight=surface_weight)
     _say(progress, f"[{time.perf_counter() - t0:6.1f} s] bundle: camera RMS "
          f"{st.cost['camera_rms_px']:.4f} px, projector RMS {st.cost['projector_rms_px']:.4f} "
          f"px ({len(proj.view)} observations, {n_out} outliers left out)")
@@ -646,7 +669,7 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
 
     rc = camera_residuals(st.kc, st.rvecs, st.tvecs, cam.corners, *dc)
     rpj = projector_residuals(st.kc, st.rvecs, st.tvecs, st.kp, st.rp, st.tp, proj, dc, dp,
-                              st.shrink)
+                              st.shrink, st.surface)
     P = len(names)
     cres = [rc[cam.corners.view == i] for i in range(P)]
     pres = [rpj[proj.view == i] for i in range(P)]
@@ -671,6 +694,8 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
                                    "note": "falling band edges read +bias, rising -bias"}
         if np.any(proj.sign != 0) else None,
         "camera_init_rms_px": float(cam.rms),
+        "board_surface": None if st.surface is None else _surface_figures(
+            st, proj, dc, surface_spacing or target.square, surface_weight),
         "views_used": P, "views_given": len(poses),
         "pixel_pitch_mm": {"camera": list(dc), "projector": list(dp)},
         "turntable": tt_fig,
@@ -683,7 +708,21 @@ def calibrate_scan(calib_dir: str | os.PathLike, pattern=None, *,
         corner_pixels=[cam.corners.pixels[cam.corners.view == i] for i in range(P)],
         proj_residuals=pres,
         proj_pixels=[proj.pixels[proj.view == i] for i in range(P)], warnings=warn_list,
-        turntable_calibrated=turntable_ok)
+        turntable_calibrated=turntable_ok, board_surface=st.surface)
+
+
+def _surface_figures(st: BundleState, proj: ProjObs, dc, spacing: float, weight: float) -> dict:
+    """The fitted white-part shape at the projector observations: height RMS and extremes
+    (mm), knot spacing, coefficient count, roughness weight."""
+    from .surface import surface_points
+
+    xy = surface_points(st.kc, st.rvecs, st.tvecs, proj.pixels, proj.view, *dc, st.surface)[1]
+    h = st.surface.height(np.nan_to_num(xy))
+    return {"height_rms_mm": float(np.sqrt(np.mean(h**2))), "height_min_mm": float(h.min()),
+            "height_max_mm": float(h.max()), "knot_spacing_mm": float(spacing),
+            "coefficients": int(len(st.surface.coef)), "roughness_weight": float(weight),
+            "note": "height of the board's white part over the plane of the chessboard "
+                    "corners, fitted with the rig (all poses share it)"}
 
 
 # ---------------------------------------------------------------------------------- figures
