@@ -277,7 +277,7 @@ def cad_samples(cad) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(pts), np.concatenate(ids)
 
 
-def cad_row(cad, scene, limit: float = 0.2) -> dict:
+def cad_row(cad, scene, limit: float = 0.2, chunk: int = 200_000) -> dict:
     """Distances of the CAD surface set to the truth (:func:`cad_samples`, exact closest
     points): ``n`` samples, ``mean_mm``, ``std_mm``, ``p99_mm``, ``max_sample_mm``,
     ``over_limit`` (samples farther than ``limit`` mm) and ``cells_over_limit`` (kept cells
@@ -286,7 +286,9 @@ def cad_row(cad, scene, limit: float = 0.2) -> dict:
     from ..merge.cad import outline
 
     X, cell = cad_samples(cad)
-    d = scene.closest_point(X)[1] if len(X) else np.zeros(0)
+    # in chunks: the closest-point query's candidate arrays grow with the samples
+    d = np.concatenate([scene.closest_point(X[a:a + chunk])[1]
+                        for a in range(0, len(X), chunk)] or [np.zeros(0)])
     over = d > limit
     if not len(d):
         return {"label": "CAD surface set", "n": 0, "mean_mm": None, "std_mm": None,
