@@ -25,6 +25,9 @@ def register(sub) -> None:
                         "table is written beside it with the suffix .md")
     p.add_argument("--cover-tol", type=float, default=0.5,
                    help="coverage tolerance, mm (0.5)")
+    p.add_argument("--cad", action="store_true",
+                   help="also build the CAD surface set (what export --format 3dm|igs|step "
+                        "writes) and measure it: 3 x 3 samples per kept cell against the truth")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 
@@ -46,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
 
     say(f"load {args.model}")
     model = load_model(args.model)
-    ev = evaluate_model(model, args.truth, cover_tol=args.cover_tol, workers=2, progress=say)
+    ev = evaluate_model(model, args.truth, cover_tol=args.cover_tol, workers=2, progress=say,
+                        cad=args.cad)
     out = args.output or (args.model / "evaluation.json")
     md = format_table(ev)
     with atomic_paths(out, out.with_suffix(".md")) as (t_json, t_md):  # both or neither

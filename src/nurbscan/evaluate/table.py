@@ -19,6 +19,11 @@ mesh of the object, over area-uniform samples of the mesh instead of entities, i
 (exact point-to-mesh distances of the true samples), connected parts, and its area against the
 true area it covers (no doubled layers: a surface seen twice counts twice in the mesh's area,
 once in the truth's).
+
+``cad`` (:func:`cad_row`, ``evaluate_model(..., cad=True)``, ``nurbscan evaluate --cad``): the
+CAD surface set (:func:`nurbscan.merge.cad.cad_set`, what ``export --format 3dm|igs|step``
+writes) sampled at 3 x 3 points per kept cell (corners included), each sample's exact
+distance to the true surface.
 """
 
 from __future__ import annotations
@@ -252,9 +257,56 @@ def fused_row(fused, scene, P: np.ndarray, vis: np.ndarray, gordon_covered: np.n
             "area_ratio_gordon": area / max(g_area, 1e-9)}
 
 
+def cad_samples(cad) -> tuple[np.ndarray, np.ndarray]:
+    """Samples of a CAD set's kept cells: ``(points (9 n, 3) mm, cell (9 n,) int)``, 3 x 3 per
+    kept cell (its corners, edge midpoints and centre in the parameter plane), ``cell``
+    numbering the kept cells of ``cad.patches`` in order."""
+    pts, ids, at = [], [], 0
+    t = np.array([0.0, 0.5, 1.0])
+    for p in cad.patches:
+        S, u, v = p["surface"], np.asarray(p["u"], float), np.asarray(p["v"], float)
+        i, j = np.nonzero(p["keep"])
+        uu = (u[i][:, None] + t[None] * (u[i + 1] - u[i])[:, None])[:, :, None]
+        vv = (v[j][:, None] + t[None] * (v[j + 1] - v[j])[:, None])[:, None, :]
+        uu, vv = np.broadcast_arrays(uu, vv)
+        pts.append(S.evaluate(uu.ravel(), vv.ravel()))
+        ids.append(np.repeat(np.arange(at, at + len(i)), 9))
+        at += len(i)
+    if not pts:
+        return np.zeros((0, 3)), np.zeros(0, int)
+    return np.concatenate(pts), np.concatenate(ids)
+
+
+def cad_row(cad, scene, limit: float = 0.2, chunk: int = 200_000) -> dict:
+    """Distances of the CAD surface set to the truth (:func:`cad_samples`, exact closest
+    points): ``n`` samples, ``mean_mm``, ``std_mm``, ``p99_mm``, ``max_sample_mm``,
+    ``over_limit`` (samples farther than ``limit`` mm) and ``cells_over_limit`` (kept cells
+    with such a sample), ``cells``, ``surfaces`` (rectangles, 3dm/igs), ``regions`` (trimmed
+    faces, STEP) and ``area_mm2`` (kept cells)."""
+    from ..merge.cad import outline
+
+    X, cell = cad_samples(cad)
+    # in chunks: the closest-point query's candidate arrays grow with the samples
+    d = np.concatenate([scene.closest_point(X[a:a + chunk])[1]
+                        for a in range(0, len(X), chunk)] or [np.zeros(0)])
+    over = d > limit
+    if not len(d):
+        return {"label": "CAD surface set", "n": 0, "mean_mm": None, "std_mm": None,
+                "p99_mm": None, "max_sample_mm": None, "over_limit": 0,
+                "cells_over_limit": 0, "limit_mm": limit, "cells": 0,
+                "surfaces": len(cad.surfaces), "regions": 0, "area_mm2": 0.0}
+    return {"label": "CAD surface set", "n": int(len(d)), "mean_mm": float(d.mean()),
+            "std_mm": float(d.std()), "p99_mm": float(np.percentile(d, 99)),
+            "max_sample_mm": float(d.max()), "over_limit": int(over.sum()),
+            "cells_over_limit": int(len(np.unique(cell[over]))), "limit_mm": limit,
+            "cells": int(cell.max() + 1), "surfaces": len(cad.surfaces),
+            "regions": int(sum(len(outline(p["keep"])) for p in cad.patches)),
+            "area_mm2": float(cad.info.get("area_mm2", 0.0))}
+
+
 def evaluate_model(model, truth_dir: str | os.PathLike, n_samples: int = 100,
                    n_coverage: int = 20000, cover_tol: float = 0.5, workers: int = 1,
-                   progress=None) -> dict:
+                   progress=None, cad: bool = False) -> dict:
     """Table I figures, coverage and a per-view breakdown of a model against the truth.
 
     Parameters
@@ -275,6 +327,9 @@ def evaluate_model(model, truth_dir: str | os.PathLike, n_samples: int = 100,
         on it.
     progress : callable, optional
         ``progress(message)`` at each step (the command line prints it).
+    cad : bool
+        Also build the CAD surface set (:func:`nurbscan.merge.cad.cad_set`, the scan's rig
+        when found) and add its row ``cad`` (:func:`cad_row`).
 
     Returns
     -------
@@ -342,6 +397,12 @@ def evaluate_model(model, truth_dir: str | os.PathLike, n_samples: int = 100,
            "samples_per_entity": n_samples, "views": views}
     if fused is not None:
         out["fused"] = fused
+    if cad:
+        from ..export import find_rig
+        from ..merge.cad import cad_set
+
+        say("the CAD surface set")
+        out["cad"] = cad_row(cad_set(model, find_rig(model), progress=progress), scene)
     return out
 
 
@@ -365,6 +426,11 @@ def format_table(ev: dict) -> str:
         lines.append(f"| {fu['label']} ({fu['faces']} triangles) | {fu['n']} samples | "
                      f"{_f(fu['mean_mm'])} | {_f(fu['std_mm'])} | {_f(fu['min_mm'], 7)} | "
                      f"{_f(fu['max_mm'])} | {_f(fu['max_sample_mm'], 4)} | - | - |")
+    ca = ev.get("cad")
+    if ca is not None and ca["n"]:
+        lines.append(f"| {ca['label']} ({ca['regions']} faces) | {ca['n']} samples | "
+                     f"{_f(ca['mean_mm'])} | {_f(ca['std_mm'])} | - | - | "
+                     f"{_f(ca['max_sample_mm'], 4)} | - | - |")
     lines += ["", f"Coverage of the turntable-visible true surface by Gordon patches: "
               f"{100 * ev['coverage']:.1f} % (within {ev['coverage_tolerance_mm']} mm).", ""]
     if fu is not None:
@@ -377,6 +443,12 @@ def format_table(ev: dict) -> str:
                   f"({fu['true_covered_area_mm2']:.0f} mm^2), {fu['area_ratio_gordon']:.3f} x "
                   f"the true area the Gordon patches cover "
                   f"({fu['gordon_covered_area_mm2']:.0f} mm^2).", ""]
+    if ca is not None and ca["n"]:
+        lines += [f"CAD surface set: {ca['over_limit']} of {ca['n']} samples (in "
+                  f"{ca['cells_over_limit']} of {ca['cells']} cells) farther than "
+                  f"{ca['limit_mm']} mm from the truth, p99 {ca['p99_mm']:.4f} mm, "
+                  f"{ca['area_mm2']:.0f} mm^2 in {ca['regions']} trimmed faces "
+                  f"({ca['surfaces']} rectangles).", ""]
     lines += ["## Per view", "",
               "| view | table (deg) | h lines | v lines | h skin | v skin | Gordon (n) | "
               "coverage |", "|---|---|---|---|---|---|---|---|"]

@@ -12,6 +12,11 @@ coincide, only the best patch, and cuts every patch back to its measured data:
    So is a cell whose nearest own edge points lie off it by more than ``residual_sigma``
    robust standard deviations of its view's residuals (the surface does not follow its
    data there); a better-scored cell of another view then takes its place.
+   With the model's fused mesh (:mod:`nurbscan.merge.fusion`: screened Poisson of all
+   views' samples, trimmed to where data is), a cell whose centre or one of its corners lies
+   farther than ``fused_mm`` from the fused mesh (exact point-to-triangle distance) is cut
+   too: it departs from the surface all views agree on, or runs where the fused mesh has no
+   surface (past the data).
 3. **Score.** Each patch gets one score, ``cos(theta) - rms / pitch``: ``theta`` the mean
    angle between its normals and the directions to its view's camera (most frontal first),
    ``rms`` the RMS point-to-plane distance of its view's edge points to it (the fit's own
@@ -80,6 +85,11 @@ class CadOptions:
         deviation of 0.03 mm apart on the 1024 x 768 teapot scan: 0.1 mm is 3.3 of them.
     consistency_rounds : int
         Rounds of the cross-view cut (each followed by the ownership step).
+    fused_mm : float or None
+        With the model's fused mesh, cells with their centre or a corner farther than this
+        from it (mm) are cut before ownership (step 2; None: no such cut). The fused mesh is
+        the views' layers averaged: 0.1 mm is ``consistent_mm``'s 3.3 robust standard
+        deviations of the layers' spread.
     """
 
     cell_mm: float = 0.3
@@ -90,6 +100,7 @@ class CadOptions:
     max_cells: int = 400
     consistent_mm: float | None = 0.1
     consistency_rounds: int = 2
+    fused_mm: float | None = 0.1
 
     def __post_init__(self) -> None:
         if not (self.cell_mm > 0 and self.support_pitch > 0 and self.cover_mm > 0):
@@ -115,7 +126,8 @@ class CadSet:
         (nu, nv) bool, its kept cells (the surfaces above are their rectangles).
     info : dict
         Counts and areas: ``patches``, ``patches_kept``, ``surfaces``, ``cells``,
-        ``cells_kept``, ``cells_unsupported``, ``cells_covered``, ``area_mm2`` (kept cells),
+        ``cells_kept``, ``cells_unsupported``, ``cells_off_fused`` (cut by the fused mesh),
+        ``cells_covered``, ``area_mm2`` (kept cells),
         ``pitch_mm``, ``options``.
     """
 
@@ -155,12 +167,18 @@ def cad_set(model, rig=None, options: CadOptions | None = None, progress=None) -
     view = np.array([int(s["view"]) for s in gordon])
     supported = _supported(model, P, N, view[owner], opt.support_pitch * pitch,
                            opt.residual_sigma)
+    witness = supported.copy()  # the cross-view cut's witnesses keep the fused-mesh cut's
+    fused = getattr(model, "fused", None)
+    off_fused = np.zeros(len(P), bool)
+    if opt.fused_mm is not None and fused is not None and len(fused.faces):
+        off_fused = _off_fused(cells, fused, opt.fused_mm) & supported
+        supported &= ~off_fused
     score = _scores(model, rig, gordon, cells, P, N, owner, view, pitch, _camera_centres)
     covered = _covered(P, N, owner, view, score, supported, opt)
     keep = supported & ~covered
     inconsistent = np.zeros(len(P), bool)
     for _ in range(opt.consistency_rounds if opt.consistent_mm is not None else 0):
-        cut = _inconsistent(P, N, view[owner], keep, supported & ~inconsistent, opt)
+        cut = _inconsistent(P, N, view[owner], keep, witness & ~inconsistent, opt)
         if not cut.any():
             break
         inconsistent |= cut
@@ -182,14 +200,16 @@ def cad_set(model, rig=None, options: CadOptions | None = None, progress=None) -
     area = np.concatenate([c["area"] for c in cells])
     info = {"patches": len(gordon), "patches_kept": len({(d["view"], d["patch"]) for d in out}),
             "surfaces": len(out), "cells": int(len(P)), "cells_kept": int(keep.sum()),
-            "cells_unsupported": int((~supported).sum()),
+            "cells_unsupported": int((~supported & ~off_fused).sum()),
+            "cells_off_fused": int(off_fused.sum()),
             "cells_covered": int((covered & supported & ~inconsistent).sum()),
             "cells_inconsistent": int(inconsistent.sum()),
             "area_mm2": float(area[keep].sum()), "area_all_mm2": float(area.sum()),
             "pitch_mm": pitch, "options": opt.to_dict()}
     say(f"CAD set: {info['surfaces']} surfaces from {info['patches_kept']} of "
         f"{info['patches']} Gordon patches; {info['cells_unsupported']} of {info['cells']} "
-        f"cells past the data cut, {info['cells_covered']} under a better view's patch, "
+        f"cells past the data cut, {info['cells_off_fused']} off the fused mesh, "
+        f"{info['cells_covered']} under a better view's patch, "
         f"{info['cells_inconsistent']} off the other views' cells")
     return CadSet(out, info, kept)
 
@@ -197,7 +217,8 @@ def cad_set(model, rig=None, options: CadOptions | None = None, progress=None) -
 # ---------------------------------------------------------------------------- steps
 def _cells(S: NurbsSurface, opt: CadOptions) -> dict:
     """The patch's cell grid: cell boundaries ``u`` (nu + 1,), ``v`` (nv + 1,), centres'
-    points and normals (nu * nv, 3), areas (nu * nv,) and ``shape`` (nu, nv)."""
+    points and normals (nu * nv, 3), areas (nu * nv,), ``shape`` (nu, nv) and the cells'
+    corner points ``corners`` ((nu + 1) * (nv + 1), 3; row-major in ``(u, v)``)."""
     (u0, u1), (v0, v1) = S.domain
     t = np.linspace(0.0, 1.0, 9)
     G = S.evaluate_grid(u0 + (u1 - u0) * t, v0 + (v1 - v0) * t)
@@ -214,7 +235,7 @@ def _cells(S: NurbsSurface, opt: CadOptions) -> dict:
     Nn = cross / np.maximum(jac, 1e-300)[:, None]
     area = jac * (u[1] - u[0]) * (v[1] - v[0])
     return {"u": u, "v": v, "points": D[0, 0], "normals": Nn, "area": area,
-            "shape": (nu, nv)}
+            "shape": (nu, nv), "corners": S.evaluate_grid(u, v).reshape(-1, 3)}
 
 
 def _supported(model, P: np.ndarray, N: np.ndarray, pview: np.ndarray, reach: float,
@@ -247,6 +268,27 @@ def _supported(model, P: np.ndarray, N: np.ndarray, pview: np.ndarray, reach: fl
         sigma = 1.4826 * np.median(med[near[:, 0]])
         ok[sel] &= med <= residual_sigma * sigma
     return ok
+
+
+def _off_fused(cells: list, fused, tol: float) -> np.ndarray:
+    """Which cells (all patches' cells in order, (n,) bool) have their centre or one of their
+    four corners farther than ``tol`` mm from the fused mesh (exact unsigned point-to-mesh
+    distances, :func:`nurbscan.evaluate.table.mesh_distances`: Open3D's BVH)."""
+    from ..evaluate.table import mesh_distances
+
+    X = np.concatenate([c["points"] for c in cells] + [c["corners"] for c in cells])
+    d = mesh_distances(fused.vertices, fused.faces, X)
+    n_c = sum(len(c["points"]) for c in cells)
+    far, at_c, at_k = [], 0, n_c
+    for c in cells:
+        nu, nv = c["shape"]
+        m = len(c["points"])
+        k = d[at_k:at_k + (nu + 1) * (nv + 1)].reshape(nu + 1, nv + 1) > tol
+        corner = k[:-1, :-1] | k[1:, :-1] | k[:-1, 1:] | k[1:, 1:]
+        far.append((d[at_c:at_c + m] > tol) | corner.ravel())
+        at_c += m
+        at_k += (nu + 1) * (nv + 1)
+    return np.concatenate(far)
 
 
 def _scores(model, rig, gordon, cells, P, N, owner, view, pitch, centres_of) -> np.ndarray:
