@@ -49,6 +49,10 @@ SAMPLE = (
     "pattern/disk_full/RLIMIT_FSIZE 0 B",
     "simulate/absurd_options/--seed -1",
     "export/absurd_options/--per-span 0",
+    # failing in the recorded run (a57f06a), fixed since:
+    "demo/disk_full/RLIMIT_FSIZE 0 B",  # 'nurbscan pattern: error', out/demo left behind
+    "batch/malformed_json/in/rig.json a list",  # two lines, OUT/batch.json written
+    "batch/absurd_options/--workers -1",  # exit 0
 )
 
 
@@ -144,3 +148,121 @@ def test_export_absurd_memory_budget_is_one_line(tmp_path, capsys, budget):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"--memory-budget {float(budget)}" in err[0], err
     assert not (tmp_path / "m.glb").exists()
+
+
+# ---------------------------------------------------------------------- classes fixed since a57f06a
+def test_evaluate_refuses_a_model_view_without_its_truth_file(tmp_path, capsys):
+    """A model of views 0 and 1 against a truth folder holding view_00.npz only: one line
+    naming view_01.npz, nothing written (was: exit 0, view 1 left out of the coverage). With
+    the file there the same command evaluates both views."""
+    import numpy as np
+
+    from nurbscan.reconstruct import Model
+    from nurbscan.simulate.scenes import make_scene
+
+    truth = tmp_path / "truth"
+    truth.mkdir()
+    (truth / "scene.json").write_text(json.dumps(make_scene("sphere").to_dict()))
+    sid, pts = np.full((4, 4), -1), np.zeros((4, 4, 3))
+    np.savez(truth / "view_00.npz", surface_id=sid, point_obj=pts)
+    n = 5
+    Model(views=[{"index": 0, "table_angle": 0.0}, {"index": 1, "table_angle": 3.0}],
+          points=np.ones((n, 3)), normals=np.ones((n, 3)) / 3 ** 0.5,
+          point_view=np.zeros(n, int)).save(tmp_path / "m")
+    argv = ["evaluate", str(tmp_path / "m"), "--truth", str(truth), "-o",
+            str(tmp_path / "ev.json"), "-q"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "view_01.npz" in err[0] and "view 1" in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m", "truth"]
+    np.savez(truth / "view_01.npz", surface_id=sid, point_obj=pts)
+    assert main(argv) == 0
+    capsys.readouterr()
+    ev = json.loads((tmp_path / "ev.json").read_text())
+    assert [v["index"] for v in ev["views"]] == [0, 1]
+
+
+@pytest.mark.parametrize("scene", ["[1, 2]", '{"type": "nurbscan.scene", "name": "dragon"}'])
+def test_evaluate_names_scene_json_when_it_is_not_a_scene(tmp_path, capsys, scene):
+    import numpy as np
+
+    from nurbscan.reconstruct import Model
+
+    truth = tmp_path / "truth"
+    truth.mkdir()
+    (truth / "scene.json").write_text(scene)
+    Model(views=[{"index": 0}], points=np.ones((5, 3)), normals=np.ones((5, 3)) / 3 ** 0.5,
+          point_view=np.zeros(5, int)).save(tmp_path / "m")
+    assert main(["evaluate", str(tmp_path / "m"), "--truth", str(truth), "-o",
+                 str(tmp_path / "ev.json"), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(truth / "scene.json") in err[0], err
+    assert not (tmp_path / "ev.json").exists()
+
+
+@pytest.mark.parametrize("data", [b'{"type": "nurbscan.model"}', b"ply\n\n\n",
+                                  b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x"
+                                  b"\nproperty float y\nend_header\n1 2\n3 4\n"])
+def test_a_fused_ply_of_another_kind_is_one_line(tmp_path, data):
+    """JSON, a bare header and 2-D vertices in fused.ply (the first was an IndexError traceback
+    from trimesh's PLY parser in ``nurbscan merge``); a real one still reads."""
+    import numpy as np
+
+    from nurbscan.errors import NurbscanError
+    from nurbscan.merge.fusion import FusedMesh, read_fused, write_fused
+
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    mesh = FusedMesh(V, np.array([[0, 1, 2]]), np.full((3, 4), 200, np.uint8), {})
+    good = write_fused(tmp_path, mesh)
+    assert np.allclose(read_fused(good).vertices, V)
+    bad = tmp_path / "bad.ply"
+    bad.write_bytes(data)
+    with pytest.raises(NurbscanError, match="bad.ply") as e:
+        read_fused(bad)
+    assert "\n" not in str(e.value)
+
+
+def test_a_failed_demo_removes_what_it_wrote_into_a_folder_that_was_there(tmp_path, capsys):
+    """The simulate step refused (a rig file that is not JSON) after the pattern was written:
+    one 'nurbscan demo' line naming the step and the file; the folder's own file kept, the
+    new pattern removed (was: 'nurbscan simulate: error', pattern.png and pattern.json left)."""
+    from nurbscan.cli import demo
+
+    out = tmp_path / "demo"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    calls = []
+
+    def fake(argv):  # the pattern step writes, the next one fails as simulate would
+        calls.append(argv[0])
+        if argv[0] == "pattern":
+            (out / "pattern.png").write_bytes(b"png")
+            return 0
+        from nurbscan.errors import NurbscanError
+
+        raise NurbscanError(f"{argv[0]}: {out / 'scan' / 'rig.json'}: not valid JSON")
+
+    import unittest.mock
+
+    with unittest.mock.patch.object(demo, "_cli", fake):
+        assert main(["demo", "-o", str(out), "--views", "1", "--width", "64",
+                     "--height", "48"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    err = [e for e in err if not e.startswith("[")]
+    assert calls == ["pattern", "simulate"]
+    assert len(err) == 1 and err[0].startswith("nurbscan demo: error: simulate: "), err
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+
+
+def test_report_checks_an_overlay_header_before_decoding(tmp_path, capsys):
+    """An --overlay PNG whose header claims 40000 x 40000 px: one line naming it, no report
+    (was: OpenCV's CV_IO_MAX_IMAGE_PIXELS assertion as a cv2.error traceback)."""
+    model = sphere_model()
+    model.save(tmp_path / "model")
+    _bench().huge_png_header("huge.png")(tmp_path)
+    out = tmp_path / "r.html"
+    assert main(["report", str(tmp_path / "model"), "-o", str(out), "-q", "--no-detect",
+                 "--no-heat-map", "--overlay", str(tmp_path / "huge.png")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "huge.png" in err[0] and "40000 x 40000" in err[0], err
+    assert not out.exists()

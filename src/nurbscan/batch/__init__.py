@@ -206,16 +206,34 @@ def run_batch(scans: Sequence[str | os.PathLike], out: str | os.PathLike, *,
     dict
         ``{"type": "nurbscan.batch", "scans": [scan report, ...], "ok", "partial",
         "failed", "skipped", "wall_s", "cluster_start_s"}``; each scan report has ``name``,
-        ``status`` (``ok``, ``partial``, ``failed``, ``skipped``) and ``errors``.
+        ``status`` (``ok``, ``partial``, ``failed``, ``skipped``) and ``errors``. When no scan
+        is complete (every one failed) nothing is written: ``out`` is left as it was (removed
+        if this run made it), as when an exception stops the batch.
     """
-    from ..io import write_json
-
     options = options or BatchOptions()
-    say = progress or (lambda _m: None)
-    t0 = time.perf_counter()
     if not serial:
         require_dask()
     jobs = scan_jobs(scans, out, calib)
+    made = not Path(out).exists()
+    try:
+        summary = _run_jobs(jobs, out, options, scheduler, workers, serial, progress)
+    except BaseException:
+        if made:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    if made and summary["failed"] == len(jobs):
+        shutil.rmtree(out, ignore_errors=True)
+    return summary
+
+
+def _run_jobs(jobs: list[ScanJob], out, options: BatchOptions, scheduler: str | None,
+              workers: int, serial: bool, progress) -> dict:
+    """:func:`run_batch`'s work: the scans run, ``out / "batch.json"`` written unless every
+    scan failed."""
+    from ..io import write_json
+
+    say = progress or (lambda _m: None)
+    t0 = time.perf_counter()
     Path(out).mkdir(parents=True, exist_ok=True)
     reports: dict[str, dict] = {}
     todo = []
@@ -245,7 +263,8 @@ def run_batch(scans: Sequence[str | os.PathLike], out: str | os.PathLike, *,
                   for s in ("ok", "partial", "failed", "skipped")},
                "wall_s": round(time.perf_counter() - t0, 3),
                "cluster_start_s": round(cluster_s, 3)}
-    write_json(Path(out) / "batch.json", summary)
+    if summary["failed"] < len(jobs):
+        write_json(Path(out) / "batch.json", summary)
     return summary
 
 

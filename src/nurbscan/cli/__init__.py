@@ -51,18 +51,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def error_text(exc: NurbscanError | OSError) -> str:
+    """The one-line message of an input error, or of a file-system failure no stage turned
+    into a :class:`~nurbscan.errors.NurbscanError` (``FILE: strerror``)."""
+    if isinstance(exc, NurbscanError):
+        return str(exc)
+    where = f"{exc.filename}: " if exc.filename else ""
+    return f"{where}{exc.strerror or exc}"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; return the exit status (0 success, 2 bad input)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except NurbscanError as exc:
-        print(f"nurbscan {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:  # a file-system failure no stage turned into a NurbscanError
-        where = f"{exc.filename}: " if exc.filename else ""
-        print(f"nurbscan {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+    except (NurbscanError, OSError) as exc:
+        print(f"nurbscan {args.command}: error: {error_text(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"nurbscan {args.command}: interrupted", file=sys.stderr)

@@ -27,7 +27,7 @@ def register(sub) -> None:
             "Exit status: 0 every scan complete; 3 partial result: some scan or view failed\n"
             "(each one reported with its error, the others written, as reconstruct's 3);\n"
             "2 bad input (no such folder, unknown format, no Dask, no scheduler at the\n"
-            "address) or no scan complete (each failure reported; OUT/batch.json says why)."))
+            "address) or no scan complete (the failures on the error line; nothing written)."))
     p.add_argument("scans", type=Path, nargs="+", metavar="SCAN_DIR",
                    help="scan folders (with scan.json)")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="OUT",
@@ -70,21 +70,25 @@ def run(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"[{time.perf_counter() - t0:7.1f} s] {msg}", file=sys.stderr, flush=True)
 
+    if args.workers < 1:
+        raise NurbscanError(f"--workers {args.workers}: must be at least 1")
+    if args.serial and args.scheduler:
+        raise NurbscanError(f"--scheduler {args.scheduler}: not used with --serial (which "
+                            "runs the tasks here); give one of them")
     summary = run_batch(args.scans, args.output, calib=args.calib, options=options,
                         scheduler=args.scheduler, workers=args.workers, serial=args.serial,
                         progress=say)
+    failed = [r for r in summary["scans"] if r["status"] == "failed"]
+    if len(failed) == len(summary["scans"]):  # nothing written: the one error line says why
+        others = ", ".join(r["name"] for r in failed[1:])
+        raise NurbscanError(f"no scan complete: {failed[0]['name']}: "
+                            f"{'; '.join(failed[0]['errors'])}"
+                            + (f" (and {len(failed) - 1} more failed scans: {others})"
+                               if others else "") + "; nothing written")
     if args.quiet:
         for rep in summary["scans"]:
             if rep["status"] in ("failed", "partial"):
                 print(f"nurbscan batch: {rep['name']}: {rep['status']}: "
                       f"{'; '.join(rep['errors'])}", file=sys.stderr)
     print(main_report(summary, args.output))
-    if summary["failed"] + summary["partial"] == 0:
-        return 0
-    if summary["ok"] + summary["skipped"] + summary["partial"] == 0:
-        first = next(r for r in summary["scans"] if r["status"] == "failed")
-        raise NurbscanError(f"no scan complete: {first['name']}: {'; '.join(first['errors'])}"
-                            + (f" (and {summary['failed'] - 1} more failed scans, in "
-                               f"{Path(args.output) / 'batch.json'})"
-                               if summary["failed"] > 1 else ""))
-    return PARTIAL
+    return 0 if summary["failed"] + summary["partial"] == 0 else PARTIAL

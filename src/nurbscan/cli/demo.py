@@ -8,6 +8,8 @@ against the truth and write the report.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -45,27 +47,63 @@ def register(sub) -> None:
 
 
 def _cli(argv: list[str]) -> int:
-    """``nurbscan ARGV`` (module level, so that a worker process can run it)."""
-    from . import main as cli_main
+    """``nurbscan ARGV`` (module level, so that a worker process can run it); the exit status.
 
-    return cli_main(argv)
+    An input error is raised, not printed, as a :class:`~nurbscan.errors.NurbscanError`
+    prefixed with the step (``pattern: FILE: ...``), for the demo's own one-line error.
+    """
+    from ..errors import NurbscanError
+    from . import build_parser, error_text
+
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (NurbscanError, OSError) as exc:
+        raise NurbscanError(f"{argv[0]}: {error_text(exc)}") from None
 
 
 def run(args: argparse.Namespace) -> int:
-    from . import main as cli_main
+    """Run the demo's steps into ``args.output``; a step's input error (exit 2) removes what
+    this run created there (the folder, when it made it, or the products new in it), so a
+    failed demo leaves the folder as it found it but for products replaced by the steps
+    that had succeeded (each written whole)."""
     from .simulate import check_scan_options
 
     # the options checked before anything is written (else a pattern.png left behind)
     check_scan_options(args)
     out: Path = args.output
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        from ..errors import NurbscanError
+
+        raise NurbscanError(f"{out}: cannot write a folder there (it is a file)")
+    made = not out.exists()
+    before = set() if made else {p.name for p in out.iterdir()}
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        return _run_steps(args, out)
+    except BaseException:
+        if made:
+            shutil.rmtree(out, ignore_errors=True)
+        else:
+            for p in out.iterdir():
+                if p.name in before:
+                    continue
+                if p.is_dir() and not p.is_symlink():
+                    shutil.rmtree(p, ignore_errors=True)
+                else:
+                    p.unlink(missing_ok=True)
+        raise
+
+
+def _run_steps(args: argparse.Namespace, out: Path) -> int:
+    """The demo's sub-commands in order (the export beside the evaluation and report)."""
     t0 = time.perf_counter()
 
     def step(title: str) -> None:
         print(f"[demo {time.perf_counter() - t0:6.1f} s] {title}", file=sys.stderr, flush=True)
 
     step("pattern")
-    status = cli_main(["pattern", "-o", str(out / "pattern.png")])
+    status = _cli(["pattern", "-o", str(out / "pattern.png")])
     if status:
         return status
 
@@ -115,10 +153,16 @@ def run(args: argparse.Namespace) -> int:
             pending = in_background(_cli, argv)
             continue
         step(title)
-        status = cli_main(argv)
+        try:
+            status = _cli(argv)
+        except BaseException:
+            if pending is not None:  # let the export finish (or fail) before the demo stops
+                with contextlib.suppress(Exception):
+                    pending()
+            raise
         if status:
             if pending is not None:
-                pending()  # let the export finish (or fail) before the demo stops
+                pending()
             return status
     if pending is not None:
         status = pending()

@@ -344,7 +344,17 @@ def evaluate_model(model, truth_dir: str | os.PathLike, n_samples: int = 100,
     if not (truth / "scene.json").exists():
         raise NurbscanError(f"{truth}: no scene.json (expected a scan's truth/ folder)")
     spec = read_json(truth / "scene.json")
-    scene = scene_from_dict(spec)
+    try:
+        scene = scene_from_dict(spec)
+    except NurbscanError as exc:
+        raise NurbscanError(f"{truth / 'scene.json'}: {exc}") from None
+    except (TypeError, ValueError, KeyError) as exc:  # fields of the wrong kind
+        raise NurbscanError(f"{truth / 'scene.json'}: not a nurbscan scene ({exc})") from None
+    have = {f.stem.split("_")[1] for f in truth.glob("view_*.npz")}
+    for idx in (int(v["index"]) for v in model.views):  # else left out of the coverage
+        if f"{idx:02d}" not in have:
+            raise NurbscanError(f"{truth / f'view_{idx:02d}.npz'}: no truth file of the "
+                                f"model's view {idx}")
     say = progress or (lambda _msg: None)
     say(f"errors of {len(model.curves)} curves and {len(model.surfaces)} surfaces against the "
         f"true {spec.get('name', 'scene')}, {n_samples} samples each")

@@ -34,6 +34,8 @@ __all__ = ["FusedMesh", "FusionOptions", "decimate", "fuse_model", "fuse_samples
            "write_fused"]
 
 FUSED_FILE = "fused.ply"
+#: Largest fused mesh read, bytes (a binary PLY of about 60 M triangles).
+MAX_FUSED_BYTES = 4 << 30
 
 
 @dataclass(frozen=True)
@@ -254,14 +256,19 @@ def read_fused(path: str | os.PathLike, info: dict | None = None) -> FusedMesh:
     """Read a fused mesh written by :func:`write_fused`."""
     import trimesh
 
+    from ..io.atomic import read_bytes
+
     path = Path(path)
-    try:
-        tm = trimesh.load(io.BytesIO(path.read_bytes()), file_type="ply", process=False)
+    data = read_bytes(path, MAX_FUSED_BYTES, "fused mesh")
+    try:  # trimesh's PLY parser fails on another kind of file with any of these
+        tm = trimesh.load(io.BytesIO(data), file_type="ply", process=False)
         V = np.asarray(tm.vertices, float)
         F = np.asarray(tm.faces, np.int64)
         C = np.asarray(tm.visual.vertex_colors, np.uint8)
-    except (OSError, ValueError, AttributeError, KeyError) as exc:
+    except (OSError, ValueError, AttributeError, KeyError, IndexError, TypeError) as exc:
         raise NurbscanError(f"{path}: not a readable fused mesh ({exc})") from None
+    if V.ndim != 2 or V.shape[1] != 3 or (F.size and (F.ndim != 2 or F.shape[1] != 3)):
+        raise NurbscanError(f"{path}: not a triangle mesh (vertices {V.shape}, faces {F.shape})")
     if C.shape != (len(V), 4):
         C = np.tile(np.array([180, 180, 180, 255], np.uint8), (len(V), 1))
     return FusedMesh(V, F, C, dict(info or {}))

@@ -22,6 +22,7 @@ import numpy as np
 
 from ..errors import NurbscanError
 from ..io.atomic import read_json, write_text
+from ..io.images import read_image
 
 __all__ = ["build_report", "detect_overlays", "error_colours", "find_overlays", "report_html",
            "vertex_errors", "write_report"]
@@ -35,6 +36,16 @@ def _static(name: str) -> bytes:
 
 def _b64(data: bytes) -> str:
     return base64.b64encode(data).decode("ascii")
+
+
+def _read_bgr(path: str | os.PathLike, what: str) -> np.ndarray:
+    """An image file as BGR in its own sample type (:func:`nurbscan.io.read_image`: a size
+    over its limit in the header, or a file that does not decode, is a one-line error naming
+    ``path`` and ``what`` it is)."""
+    try:
+        return np.ascontiguousarray(read_image(path, as_float=False)[..., ::-1])
+    except NurbscanError as exc:
+        raise NurbscanError(f"{exc} (the {what})") from None
 
 
 def _png_uri(img_bgr: np.ndarray, max_width: int = 640) -> str:
@@ -275,19 +286,18 @@ def build_report(model_dir: str | os.PathLike, overlays=None, evaluation=None,
     if overlays is None:
         overlays = find_overlays(folder, scan)
     ov = []
-    for p in overlays:
-        img = cv2.imread(str(p), cv2.IMREAD_COLOR)
-        if img is None:
-            raise NurbscanError(f"{p}: not a readable overlay image")
-        ov.append((Path(p).name, _png_uri(img)))
+    for p in overlays:  # read_image checks the header's size before decoding
+        ov.append((Path(p).name, _png_uri(_read_bgr(p, "overlay image"))))
     if not ov and detect and scan is not None and (scan / "scan.json").is_file():
         say("detect the lines of the first views for the overlay pictures")
         ov = detect_overlays(scan, rig=rig)
     pic = folder / "model.png"
     pic_uri = None
     if pic.is_file():
-        img = cv2.imread(str(pic), cv2.IMREAD_COLOR)
-        pic_uri = _png_uri(img, 960) if img is not None else None
+        try:
+            pic_uri = _png_uri(_read_bgr(pic, "picture"), 960)
+        except NurbscanError:  # the picture is optional: the report is whole without it
+            pic_uri = None
     title = f"nurbscan report: {folder.resolve().name}"
     return report_html(title, meshes, ev, model, ov, pic_uri, notes, vmax)
 
