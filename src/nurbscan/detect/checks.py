@@ -197,11 +197,7 @@ def check_extent(result) -> None:
     n = result.nlines
     if n == 0:
         return
-    x, y, line = result.x, result.y, result.line
-    same = line[1:] == line[:-1]
-    seg = np.hypot(np.diff(x), np.diff(y))
-    length = np.bincount(line[1:][same], weights=seg[same], minlength=n)
-    long = int(np.sum(length > LONG_LINE_PX))
+    long = int(np.sum(result.line_lengths() > LONG_LINE_PX))
     if long < MIN_LONG_LINES:
         raise NoGrid(f"image: only {long} of the {n} decoded lines are longer than "
                      f"{LONG_LINE_PX:.0f} px, too few to check their labels: no grid found",

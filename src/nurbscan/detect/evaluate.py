@@ -274,9 +274,7 @@ def evaluate_detection(result: DetectionResult, truth, pattern, match_radius: fl
     if nl:
         wrong = np.bincount(result.line[m & ~correct], minlength=nl)
         tot = np.bincount(result.line[m], minlength=nl)
-        seg = np.hypot(np.diff(x), np.diff(y))
-        same = result.line[1:] == result.line[:-1]
-        length = np.bincount(result.line[1:][same], weights=seg[same], minlength=nl)
+        length = result.line_lengths()
         out["wrong_lines"] = float(np.sum(wrong > 0.5 * np.maximum(tot, 1)))
         out["wrong_lines_over_20px"] = float(np.sum((wrong > 0.5 * np.maximum(tot, 1))
                                                     & (length > 20)))

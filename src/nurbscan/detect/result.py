@@ -125,6 +125,12 @@ class DetectionResult:
         """Edge (0 rising, 1 falling, 2 centre-line) of each point, (N,)."""
         return self.edge[self.line]
 
+    def line_lengths(self) -> np.ndarray:
+        """Arc length of each line's polyline through its points in order, camera px, (L,)."""
+        same = self.line[1:] == self.line[:-1]
+        seg = np.hypot(np.diff(self.x), np.diff(self.y))
+        return np.bincount(self.line[1:][same], weights=seg[same], minlength=self.nlines)
+
     def polyline(self, i: int) -> np.ndarray:
         """Points of line ``i`` in order, (n, 2) camera px."""
         s = slice(int(self.start[i]), int(self.stop[i]))

@@ -123,11 +123,11 @@ def grid_tilt(image: np.ndarray) -> Tilt:
     centre = np.arange(180) + 0.5
     modes, near = [], np.zeros(180, bool)
     for _ in range(2):
-        dist = np.abs((centre - (np.argmax(np.where(near, -1.0, smooth)) + 0.5) + 90) % 180
-                      - 90)
-        p = centre[np.argmin(dist)]
-        d3 = np.abs((centre - p + 90) % 180 - 90) <= 3
-        off = (centre[d3] - p + 90) % 180 - 90
+        p = centre[np.argmax(np.where(near, -1.0, smooth))]
+        off_all = (centre - p + 90) % 180 - 90  # signed circular distance to the peak
+        dist = np.abs(off_all)
+        d3 = dist <= 3
+        off = off_all[d3]
         modes.append((p + np.sum(off * hist[d3]) / max(hist[d3].sum(), 1e-300)) % 180)
         near |= dist < MODE_SEPARATION_DEG
     share = float(sum(hist[np.abs((centre - m + 90) % 180 - 90) <= MODE_WIDTH_DEG].sum()
