@@ -88,23 +88,27 @@ def list_schedule(summary: dict, workers: int = WORKERS) -> float:
     """Makespan (s) of the batch's task graph on ``workers`` with the tasks' measured times.
 
     Greedy list scheduling as Dask orders the tasks (:func:`nurbscan.batch._submit_scan`):
-    whenever a worker is free it takes the ready task of the earliest scan, and within a scan
-    the first submitted (calibration, plan, views, finish); no transfer or start-up cost. With
-    the serial run's times this is the wall time a perfect cluster would take for this graph:
-    the part of ``wall / (serial tasks' time / 2)`` above 1 that comes from the graph itself
-    (a scan's finish task runs after all its views, and the last one alone).
+    whenever a worker is free it takes the ready task of highest priority (earlier scans
+    first, a scan's finish task after the views of the next ``finish_lead(workers)`` scans),
+    ties in the order submitted (calibration, plan, views, finish); no transfer or start-up
+    cost. With the serial run's times this is the wall time a perfect cluster would take for
+    this graph: the part of ``wall / (serial tasks' time / 2)`` above 1 that comes from the
+    graph itself (a scan's finish task runs after all its views).
     """
     import heapq
 
-    tasks = {}  # (scan, order) -> (seconds, dependencies)
+    from nurbscan.batch import finish_lead
+
+    lead = finish_lead(workers)
+    tasks = {}  # (scan, order) -> (seconds, dependencies, priority)
     for i, r in enumerate(summary["scans"]):
         k = r["tasks"]
         n = len(k["view_s"])
-        tasks[(i, 0)] = (k["calibration_s"], [])
-        tasks[(i, 1)] = (k["plan_s"], [(i, 0)])
+        tasks[(i, 0)] = (k["calibration_s"], [], -2 * i)
+        tasks[(i, 1)] = (k["plan_s"], [(i, 0)], -2 * i)
         for j, t in enumerate(k["view_s"]):
-            tasks[(i, 2 + j)] = (t, [(i, 1)])
-        tasks[(i, 2 + n)] = (k["finish_s"], [(i, 2 + j) for j in range(n)])
+            tasks[(i, 2 + j)] = (t, [(i, 1)], -2 * i)
+        tasks[(i, 2 + n)] = (k["finish_s"], [(i, 2 + j) for j in range(n)], -2 * (i + lead) - 1)
     done: dict = {}
     free = [0.0] * workers
     todo = set(tasks)
@@ -115,7 +119,7 @@ def list_schedule(summary: dict, workers: int = WORKERS) -> float:
             later = [v for v in done.values() if v > t]
             heapq.heappush(free, min(later) if later else t)
             continue
-        x = min(ready)
+        x = min(ready, key=lambda x: (-tasks[x][2], x))
         todo.remove(x)
         done[x] = t + tasks[x][0]
         heapq.heappush(free, done[x])

@@ -140,16 +140,37 @@ def dask_client(scheduler: str | None = None, workers: int = 2) -> Iterator:
         yield client
 
 
-def _submit_scan(client, job: ScanJob, n_views: int, options: BatchOptions, rank: int):
-    """The scan's tasks on the cluster; the future of its finish task. Earlier scans first."""
+def _submit_scan(client, job: ScanJob, n_views: int, options: BatchOptions, rank: int,
+                 lead: int = 1):
+    """The scan's tasks on the cluster; the future of its finish task.
+
+    Priorities (Dask runs the ready task of highest priority first): earlier scans first, but
+    a scan's finish task ranks after the views of the ``lead`` scans that follow it
+    (:func:`finish_lead`), so that while one worker finishes a scan the others have views to
+    run, and the last scans' finish tasks run side by side rather than one after the other.
+    """
     key = f"{job.name}-{job.run}"
-    pri = -rank
+    pri = -2 * rank
     c = client.submit(calibration_task, job, key=f"nurbscan-calibration-{key}", priority=pri)
     p = client.submit(plan_task, job, c, options, key=f"nurbscan-plan-{key}", priority=pri)
     views = [client.submit(view_task, p, k, key=f"nurbscan-view-{k}-{key}", priority=pri)
              for k in range(n_views)]
     return client.submit(finish_task, job, options, c, p, *views,
-                         key=f"nurbscan-finish-{key}", priority=pri)
+                         key=f"nurbscan-finish-{key}", priority=pri - 2 * lead - 1)
+
+
+def finish_lead(workers: int) -> int:
+    """How many later scans' views rank before a scan's finish task: one less than the workers.
+
+    A scan's finish task (merge, fuse, export) is long and runs after all its views; with
+    earlier-scan-first order alone the last scan's finish runs by itself at the end while the
+    other workers idle (on 2 workers and 4 scans of 4 views: 1.10 times the tasks' time over
+    2, by list scheduling with measured task times; ``benchmarks/bench_batch.py``). Ranking
+    the views of the next ``workers - 1`` scans before it keeps the workers busy to the end
+    (1.00 there; 1.00-1.06 on 4 workers and 4-20 scans), at the cost of holding the view
+    results of ``workers - 1`` more scans (about 9 MB per 7.1 MP view).
+    """
+    return max(1, workers - 1)
 
 
 def _run_serial(job: ScanJob, n_views: int, options: BatchOptions) -> dict:
@@ -278,7 +299,8 @@ def _run_dask(todo, options, scheduler, workers, reports, total, say) -> float:
         info = client.scheduler_info()
         say(f"Dask scheduler {info.get('address', scheduler)}, "
             f"{len(info.get('workers', {}))} workers; dashboard {client.dashboard_link}")
-        futures = {_submit_scan(client, job, n, options, r): job
+        lead = finish_lead(len(info.get("workers", {})) or workers)
+        futures = {_submit_scan(client, job, n, options, r, lead): job
                    for r, (job, n) in enumerate(todo)}
         for fut in as_completed(list(futures)):
             job = futures.pop(fut)
