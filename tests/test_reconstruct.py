@@ -293,6 +293,34 @@ def test_rectangles_greedy_largest_first():
     assert r[0] == (0, 4, 0, 5) and r[1] == (4, 6, 5, 8) and len(r) == 2
 
 
+def test_rectangles_split_as_repeated_largest():
+    """The greedy split recomputes only the rows a taken rectangle changed; it gives the same
+    rectangles in the same order as taking :func:`_largest` of the whole mask each time, and
+    each is as large as a brute-force search finds (random masks, blobs and noise)."""
+    from nurbscan.reconstruct.network import _largest
+
+    rng = np.random.default_rng(7)
+    for k in range(60):
+        R, C = rng.integers(3, 40, 2)
+        m = rng.random((R, C)) < (0.6 + 0.35 * (k % 3 == 0))
+        if k % 2:  # blobs: rectangles of many sizes
+            m = np.zeros((R, C), bool)
+            for _ in range(4):
+                r0, c0 = rng.integers(0, R), rng.integers(0, C)
+                m[r0:r0 + rng.integers(1, 20), c0:c0 + rng.integers(1, 20)] = True
+        free, ref = m.copy(), []
+        while (r := _largest(free, 2, 2)) is not None:
+            if not ref:  # the largest area by brute force (summed-area table)
+                S = np.pad(free.astype(int).cumsum(0).cumsum(1), ((1, 0), (1, 0)))
+                r0, r1, c0, c1 = np.ix_(*(np.arange(n + 1) for n in (R, R, C, C)))
+                full = (S[r1, c1] - S[r0, c1] - S[r1, c0] + S[r0, c0]) == (r1 - r0) * (c1 - c0)
+                area = np.where(full & (r1 - r0 >= 2) & (c1 - c0 >= 2), (r1 - r0) * (c1 - c0), 0)
+                assert (r[1] - r[0]) * (r[3] - r[2]) == area.max()
+            ref.append(r)
+            free[r[0]:r[1], r[2]:r[3]] = False
+        assert rectangles(m, 2, overlap=False) == ref
+
+
 def test_rectangles_cover_narrow_strips_by_overlapping():
     """A one-cell strip beside a larger rectangle is covered by a rectangle reusing cells."""
     m = np.zeros((7, 9), bool)

@@ -232,6 +232,8 @@ def _evaluate(curve: NurbsCurve, w: np.ndarray, tangent: bool = False):
     """
     lo, hi = curve.domain
     wc = np.clip(w, lo, hi)
+    if not tangent and np.array_equal(wc, w):  # inside the domain: no tangent needed
+        return curve.evaluate(w)
     P, D = curve.derivatives(wc, 1)
     P = P + (w - wc)[:, None] * D
     return (P, D) if tangent else P
@@ -405,27 +407,49 @@ def _validated_runs(params: np.ndarray, seg: np.ndarray, good: np.ndarray,
 def _largest(mask: np.ndarray, min_r: int, min_c: int):
     """Largest all-true rectangle with at least min_r rows and min_c columns (histogram/stack).
 
-    Returns (r0, r1, c0, c1) half-open, or None.
+    Returns (r0, r1, c0, c1) half-open, or None; of several of the largest area, the one
+    whose last row comes first (:func:`_row_best` for each row's own).
     """
-    R, C = mask.shape
-    h = np.zeros(C, int)
+    best = [_row_best(h, r, min_r, min_c) for r, h in enumerate(_heights(mask))]
+    return _first_largest(best)
+
+
+def _heights(mask: np.ndarray) -> np.ndarray:
+    """Histogram of each row (R, C): how many true cells end at that row in each column."""
+    h = np.zeros(mask.shape, int)
+    run = np.zeros(mask.shape[1], int)
+    for r in range(mask.shape[0]):
+        run = np.where(mask[r], run + 1, 0)
+        h[r] = run
+    return h
+
+
+def _row_best(h: np.ndarray, r: int, min_r: int, min_c: int):
+    """``(area, rectangle)`` of the largest rectangle whose last row is ``r``, histogram ``h``
+    (C,) of that row (the stack algorithm over its columns; of equal areas the first popped),
+    or ``(0, None)``."""
     best, arg = 0, None
-    for r in range(R):
-        h = np.where(mask[r], h + 1, 0)
-        if h.max(initial=0) < min_r:
-            continue
-        stack: list = []
-        hh = list(h) + [0]
-        for c in range(C + 1):
-            start = c
-            while stack and stack[-1][1] >= hh[c]:
-                s, height = stack.pop()
-                width = c - s
-                if height >= min_r and width >= min_c and height * width > best:
-                    best, arg = height * width, (r - height + 1, r + 1, s, c)
-                start = s
-            stack.append((start, hh[c]))
-    return arg
+    if h.max(initial=0) < min_r:
+        return best, arg
+    stack: list = []
+    hh = list(h) + [0]
+    for c in range(len(hh)):
+        start = c
+        while stack and stack[-1][1] >= hh[c]:
+            s, height = stack.pop()
+            width = c - s
+            if height >= min_r and width >= min_c and height * width > best:
+                best, arg = height * width, (r - height + 1, r + 1, s, c)
+            start = s
+        stack.append((start, hh[c]))
+    return best, arg
+
+
+def _first_largest(best: list):
+    """The rectangle of the largest area in ``best`` (per row, :func:`_row_best`), the first
+    row's of equal ones; None when every row has none."""
+    area = max((a for a, _ in best), default=0)
+    return next((arg for a, arg in best if a == area), None) if area > 0 else None
 
 
 def rectangles(mask: np.ndarray, min_cells: int = 2, overlap: bool = True
@@ -443,12 +467,22 @@ def rectangles(mask: np.ndarray, min_cells: int = 2, overlap: bool = True
     """
     m = mask.copy()
     out = []
+    # the greedy split as repeated _largest, but a row's best rectangle is computed again only
+    # where taking a rectangle changed the row's histogram (rows from its first one down to
+    # the last one whose histogram changed): the same rectangles, in the same order
+    h = _heights(m)
+    best = [_row_best(hr, r, min_cells, min_cells) for r, hr in enumerate(h)]
     while True:
-        r = _largest(m, min_cells, min_cells)
+        r = _first_largest(best)
         if r is None:
             break
         out.append(r)
         m[r[0]:r[1], r[2]:r[3]] = False
+        h2 = _heights(m)
+        changed = np.flatnonzero((h2 != h).any(axis=1))
+        h = h2
+        for k in range(int(changed[0]), int(changed[-1]) + 1) if len(changed) else ():
+            best[k] = _row_best(h[k], k, min_cells, min_cells)
     if overlap:
         for a, b in zip(*np.nonzero(m), strict=True):
             if m[a, b]:
