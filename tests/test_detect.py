@@ -859,7 +859,7 @@ def test_attach_points_matches_a_pixel_by_pixel_oracle():
 
     def oracle(line, cls, ix, iy, ecls, ex, ey, shape, rounds):
         own = {}
-        for c, x, y, ln in zip(cls, ix, iy, line):
+        for c, x, y, ln in zip(cls, ix, iy, line, strict=True):
             own[(int(c), int(x), int(y))] = int(ln)
         att = [-1] * len(ecls)
         for _ in range(rounds):
@@ -918,14 +918,14 @@ def test_chain_links_match_a_pair_by_pair_oracle():
             _, u = np.unique((cls * size + run) * size + acr, return_index=True)
             run, acr, cls, slope = run[u], acr[u], cls[u], slope[u]
         p, q = _links(run, acr, slope, cls, size)
-        got = sorted(zip(p.tolist(), q.tolist()))
+        got = sorted(zip(p.tolist(), q.tolist(), strict=True))
         pp, qq = np.meshgrid(np.arange(len(run)), np.arange(len(run)), indexing="ij")
         pp, qq = pp.ravel(), qq.ravel()
         key = (cls * size + run) * size + acr  # (positions off 0 .. size - 1 alias, as there)
         off = key[qq] - (key[pp] + size) - np.rint(slope[pp]).astype(np.int64)
         mean = np.rint(0.5 * (slope[pp] + slope[qq])).astype(np.int64)
         ok = (np.abs(off) <= 2) & (np.abs(acr[qq] - acr[pp] - mean) <= 1)
-        want = list(zip(pp[ok].tolist(), qq[ok].tolist()))
+        want = list(zip(pp[ok].tolist(), qq[ok].tolist(), strict=True))
         if t % 2 == 0:
             assert got == sorted(want)
         else:  # repeated keys: each point links to one of the points at each key

@@ -41,6 +41,7 @@ def _links(run: np.ndarray, acr: np.ndarray, slope: np.ndarray, cls: np.ndarray,
     src, dst = [], []
     q = (base + 1) * size + acr + step - 2
     at = np.searchsorted(skey, q)
+    here = np.zeros(n, bool)
     for k in range(-2, 3):
         if k > -2:
             q = q + 1
