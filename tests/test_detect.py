@@ -849,6 +849,91 @@ def test_attach_points_continue_one_line():
     assert attach_points(line, cls, ix, iy, rising, (40, 40)).tolist()[5] == 1
 
 
+def test_attach_points_matches_a_pixel_by_pixel_oracle():
+    """attach_points (which asks again, round after round, only the free points beside a point
+    just attached) gives what the rule gives pixel by pixel: each round, every free extra
+    point joins the one line of its class owning a pixel among its 8 neighbours (random
+    images with points at their borders, 1 to 6 rounds)."""
+    from nurbscan.detect.core import attach_points
+    from nurbscan.detect.edges import EdgePoints
+
+    def oracle(line, cls, ix, iy, ecls, ex, ey, shape, rounds):
+        own = {}
+        for c, x, y, ln in zip(cls, ix, iy, line, strict=True):
+            own[(int(c), int(x), int(y))] = int(ln)
+        att = [-1] * len(ecls)
+        for _ in range(rounds):
+            new = {}
+            for i in range(len(ecls)):
+                if att[i] >= 0:
+                    continue
+                near = {own[k] for dx in (-1, 0, 1) for dy in (-1, 0, 1)
+                        if (k := (int(ecls[i]), int(ex[i]) + dx, int(ey[i]) + dy)) in own}
+                if len(near) == 1:
+                    new[i] = near.pop()
+            if not new:
+                break
+            for i, ln in new.items():
+                att[i] = ln
+                own[(int(ecls[i]), int(ex[i]), int(ey[i]))] = ln
+        return att
+
+    rng = np.random.default_rng(5)
+    attached = 0
+    for _ in range(60):
+        h, w = rng.integers(3, 25, 2)
+        pix = rng.permutation(2 * h * w)[: rng.integers(4, h * w)]
+        n = len(pix) // 3
+        cls, rest = pix // (h * w), pix % (h * w)
+        iy, ix = rest // w, rest % w
+        line = rng.integers(0, 4, n)
+        m = len(pix) - n
+        extra = EdgePoints(x=ix[n:].astype(float), y=iy[n:].astype(float),
+                           ix=ix[n:].astype(np.int32), iy=iy[n:].astype(np.int32),
+                           cls=cls[n:].astype(np.int8), strength=np.ones(m, np.float32),
+                           gx=np.ones(m, np.float32), gy=np.zeros(m, np.float32))
+        for rounds in (1, 3, 6):
+            got = attach_points(line, cls[:n], ix[:n], iy[:n], extra, (h, w), rounds=rounds)
+            want = oracle(line, cls[:n], ix[:n], iy[:n], cls[n:], ix[n:], iy[n:], (h, w),
+                          rounds)
+            assert got.tolist() == want
+            attached += int(np.sum(got >= 0))
+    assert attached > 500  # (the rule was exercised)
+
+
+def test_chain_links_match_a_pair_by_pair_oracle():
+    """lines._links (one search for the five offsets when the keys are distinct) gives the
+    pairs that the rule gives point pair by point pair: q's key (class, run, position) within
+    2 of p's in the next run shifted by round(slope_p), and |acr_q - acr_p - round((slope_p +
+    slope_q) / 2)| <= 1; with distinct and with repeated keys."""
+    from nurbscan.detect.lines import _links
+
+    rng = np.random.default_rng(3)
+    total = 0
+    for t in range(80):
+        n, size = int(rng.integers(2, 200)), int(rng.integers(5, 30))
+        run, acr = rng.integers(0, size, n), rng.integers(0, size, n)
+        cls, slope = rng.integers(0, 2, n), rng.normal(0, 1.5, n)
+        if t % 2 == 0:  # distinct keys, as the detector's points have
+            _, u = np.unique((cls * size + run) * size + acr, return_index=True)
+            run, acr, cls, slope = run[u], acr[u], cls[u], slope[u]
+        p, q = _links(run, acr, slope, cls, size)
+        got = sorted(zip(p.tolist(), q.tolist(), strict=True))
+        pp, qq = np.meshgrid(np.arange(len(run)), np.arange(len(run)), indexing="ij")
+        pp, qq = pp.ravel(), qq.ravel()
+        key = (cls * size + run) * size + acr  # (positions off 0 .. size - 1 alias, as there)
+        off = key[qq] - (key[pp] + size) - np.rint(slope[pp]).astype(np.int64)
+        mean = np.rint(0.5 * (slope[pp] + slope[qq])).astype(np.int64)
+        ok = (np.abs(off) <= 2) & (np.abs(acr[qq] - acr[pp] - mean) <= 1)
+        want = list(zip(pp[ok].tolist(), qq[ok].tolist(), strict=True))
+        if t % 2 == 0:
+            assert got == sorted(want)
+        else:  # repeated keys: each point links to one of the points at each key
+            assert set(got) <= set(want) and len(got) == len(set(got))
+        total += len(got)
+    assert total > 300
+
+
 def test_low_dominance_raises_teapot_coverage(teapot, teapot_no_corners):
     """Lower ``dominance`` (edge pixels next to a crossing band's corner join their lines, so
     more lines are traced through and labelled) with strict pairing (``corner_keep``): more

@@ -235,10 +235,10 @@ def attach_points(line, cls, ix, iy, extra, shape, rounds: int = 3) -> np.ndarra
     att = np.full(len(ecls), -1, np.int64)
     dy, dx = np.mgrid[-1:2, -1:2]
     dy, dx = dy.ravel(), dx.ravel()
+    free = np.nonzero(att < 0)[0]
     for _ in range(rounds):
         o = np.argsort(okey)
         sk, sl = okey[o], oline[o]
-        free = np.nonzero(att < 0)[0]
         if not len(free) or not len(sk):
             break
         ny = np.clip(ey[free, None] + dy[None, :], 0, h - 1)
@@ -253,8 +253,17 @@ def attach_points(line, cls, ix, iy, extra, shape, rounds: int = 3) -> np.ndarra
         if not np.any(new):
             break
         att[free[new]] = hi[new]
-        okey = np.r_[okey, keys(ecls[free[new]], ey[free[new]], ex[free[new]])]
+        added = free[new]
+        okey = np.r_[okey, keys(ecls[added], ey[added], ex[added])]
         oline = np.r_[oline, hi[new]]
+        # the next round asks only the free points beside a point just attached (of their
+        # class): the others' 8 neighbours are as they were, and so is their answer (the
+        # same result; 2 of the 3 rounds' look-ups saved, 7.1 MP view)
+        ny, nx = ey[added, None] + dy[None, :], ex[added, None] + dx[None, :]
+        inside = (ny >= 0) & (ny < h) & (nx >= 0) & (nx < w)
+        near = keys(np.repeat(ecls[added, None], 9, 1)[inside], ny[inside], nx[inside])
+        free = np.nonzero(att < 0)[0]
+        free = free[np.isin(keys(ecls[free], ey[free], ex[free]), near)]
     return att
 
 

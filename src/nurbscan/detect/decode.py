@@ -204,19 +204,22 @@ def oblique_runs(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.n
     y0, x0 = max(int(gy.min()) - m, 0), max(int(gx.min()) - m, 0)
     y1, x1 = min(int(gy.max()) + m + 1, h + 2), min(int(gx.max()) + m + 1, w + 2)
     gw = x1 - x0
-    grid = np.full((y1 - y0, gw), -1, np.int32)
-    idx = np.arange(n, dtype=np.int32)
+    # (16-bit point ids where they fit, 65535 for none: half the raster's memory traffic)
+    gtype = np.uint16 if n < 65535 else np.int32
+    none = np.iinfo(gtype).max if gtype == np.uint16 else -1
+    grid = np.full((y1 - y0, gw), none, gtype)
+    idx = np.arange(n, dtype=gtype)
     for dy, dx in ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)):
         grid[np.clip(gy + dy, 0, h + 1) - y0, np.clip(gx + dx, 0, w + 1) - x0] = idx
     grid[gy - y0, gx - x0] = idx
     if y0 == 0:
-        grid[0, :] = -1
+        grid[0, :] = none
     if y1 == h + 2:
-        grid[-1, :] = -1
+        grid[-1, :] = none
     if x0 == 0:
-        grid[:, 0] = -1
+        grid[:, 0] = none
     if x1 == w + 2:
-        grid[:, -1] = -1
+        grid[:, -1] = none
     grid = grid.ravel()
     itype = np.int32 if grid.size < 2**31 else np.int64
     succ = np.full(n, -1, np.int64)
@@ -238,7 +241,7 @@ def oblique_runs(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.n
         flat = (sy.astype(itype) + (1 - y0)) * gw + (sx.astype(itype) + (1 - x0))
         del sx, sy
         j = np.take(grid, flat)  # (A, C): the points met, in step order
-        ri, ci = np.nonzero(j >= 0)  # row-major: each ray's hits in step order
+        ri, ci = np.nonzero(j != none)  # row-major: each ray's hits in step order
         jj = j[ri, ci].astype(np.int64)
         other = line[jj] != line[active[ri]]  # (a point does not meet its own chain)
         ri, jj = ri[other], jj[other]

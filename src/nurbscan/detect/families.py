@@ -113,22 +113,33 @@ def local_plane(xs, ys, v, qx, qy, min_spread: float = 1.0, weights=None,
         With ``return_gradient``: the gradient (0 along the directions not fitted) and the
         neighbours' (weighted) variance along their direction of least spread, px^2.
     """
-    w = np.ones(xs.shape) if weights is None else np.asarray(weights, np.float64)
-    sw = np.maximum(w.sum(1), 1e-12)
-    mx, my = (w * xs).sum(1) / sw, (w * ys).sum(1) / sw
-    P = np.stack([xs - mx[:, None], ys - my[:, None]], -1)
-    vm = (w * v).sum(1) / sw
-    C = np.einsum("nk,nki,nkj->nij", w, P, P)
-    bvec = np.einsum("nk,nki,nk->ni", w, P, v - vm[:, None])
-    val, vec = np.linalg.eigh(C)
-    coef = np.einsum("nji,nj->ni", vec, bvec) / np.maximum(val, 1e-12)
-    coef = np.where(val > sw[:, None] * min_spread**2, coef, 0.0)
-    g = np.einsum("nji,ni->nj", vec, coef)
-    r2 = (vm[:, None] + np.einsum("nki,ni->nk", P, g) - v) ** 2
-    rms = np.sqrt((w * r2).sum(1) / sw)
-    q = np.c_[qx - mx, qy - my]
-    out = (vm + np.einsum("ni,ni->n", q, g), rms, v.min(1), v.max(1))
-    return out + (g, val[:, 0] / sw) if return_gradient else out
+    # the weighted 2 x 2 moments and their eigen-decomposition in closed form (a rotation by
+    # half the angle of (cxx - cyy, 2 cxy)), per point: 3.5 x faster than einsum and eigh
+    # over (N, K, 2) arrays (25 instead of 87 ms per 7.1 MP view), equal to 1e-13
+    if weights is None:
+        sw = np.full(len(xs), float(xs.shape[1]))
+        mx, my, vm = xs.mean(1), ys.mean(1), v.mean(1)
+    else:
+        w = np.asarray(weights, np.float64)
+        sw = np.maximum(w.sum(1), 1e-12)
+        mx, my, vm = (w * xs).sum(1) / sw, (w * ys).sum(1) / sw, (w * v).sum(1) / sw
+    X, Y, V = xs - mx[:, None], ys - my[:, None], v - vm[:, None]
+    wX, wY = (X, Y) if weights is None else (w * X, w * Y)
+    cxx, cyy, cxy = (wX * X).sum(1), (wY * Y).sum(1), (wX * Y).sum(1)
+    bx, by = (wX * V).sum(1), (wY * V).sum(1)
+    half, dev = 0.5 * (cxx + cyy), np.hypot(0.5 * (cxx - cyy), cxy)
+    lo_val, hi_val = half - dev, half + dev  # eigenvalues, with the vectors (-s, c), (c, s)
+    th = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
+    c, s = np.cos(th), np.sin(th)
+    lim = sw * min_spread**2
+    k_hi = np.where(hi_val > lim, (c * bx + s * by) / np.maximum(hi_val, 1e-12), 0.0)
+    k_lo = np.where(lo_val > lim, (c * by - s * bx) / np.maximum(lo_val, 1e-12), 0.0)
+    gx, gy = c * k_hi - s * k_lo, s * k_hi + c * k_lo
+    r2 = X * gx[:, None] + Y * gy[:, None] - V
+    r2 *= r2
+    rms = np.sqrt((r2 if weights is None else w * r2).sum(1) / sw)
+    out = (vm + (qx - mx) * gx + (qy - my) * gy, rms, v.min(1), v.max(1))
+    return out + (np.c_[gx, gy], lo_val / sw) if return_gradient else out
 
 
 def _plane_at(x, y, v, src, dst, k: int, radius: float) -> tuple:

@@ -34,11 +34,21 @@ def _links(run: np.ndarray, acr: np.ndarray, slope: np.ndarray, cls: np.ndarray,
     o = np.argsort(key)
     skey = key[o]
     step = np.rint(slope).astype(np.int64)
+    # the keys are distinct (one point per pixel and class): the insertion point of q + 1
+    # is that of q, one further where q is there, and one search serves the five offsets
+    # (the same pairs; 4 of 5 searches saved)
+    distinct = bool(np.all(skey[1:] != skey[:-1]))
     src, dst = [], []
+    q = (base + 1) * size + acr + step - 2
+    at = np.searchsorted(skey, q)
+    here = np.zeros(n, bool)
     for k in range(-2, 3):
-        q = (base + 1) * size + acr + step + k
-        j = np.minimum(np.searchsorted(skey, q), n - 1)
+        if k > -2:
+            q = q + 1
+            at = at + here if distinct else np.searchsorted(skey, q)
+        j = np.minimum(at, n - 1)
         hit = skey[j] == q
+        here = hit & (at < n)
         src.append(np.nonzero(hit)[0])
         dst.append(o[j[hit]])
     p, q = np.concatenate(src), np.concatenate(dst)
