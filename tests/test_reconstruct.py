@@ -705,3 +705,33 @@ def test_patch_corner_of_two_extended_sides():
     corner = p.gordon.evaluate(np.array([p.vertical[1]]), np.array([p.horizontal[1]]))[0]
     assert np.linalg.norm(corner - _surface(p.vertical[1], p.horizontal[1])) < 3e-3
 
+
+
+def test_drop_occluded_removes_the_samples_beside_a_nearer_surface(rig):
+    """Two horizontal-edge chains seen by the camera: one on a plane at 600 mm, one on a plane
+    20 mm in front whose end lies 2 px beside the first chain's end in the image. The far
+    chain's samples within 3 px of the near chain go (exactly those, by their pixel
+    distance); the near chain and a chain 10 px away keep all their samples."""
+    from nurbscan.reconstruct.triangulate import Line3D, drop_occluded
+
+    cam = rig.camera
+
+    def chain(u, v, z):  # pixels (u, v) on the plane Z = z
+        o, d = cam.back_project(np.stack([u, v], 1))
+        P = o + d * ((z - o[2]) / d[:, 2])[:, None]  # o: the camera centre
+        return Line3D("horizontal", 0, 0, 0.0, np.zeros(8), np.zeros((4, 2)), 0.0,
+                      np.arange(len(u), dtype=float), P)
+
+    u = np.arange(500.0, 540.0)
+    far = chain(u, np.full(40, 300.0), 600.0)
+    near = chain(np.arange(538.0, 560.0), np.full(22, 302.0), 580.0)  # starts 2 px beside
+    apart = chain(u, np.full(40, 312.0), 600.0)
+    out = drop_occluded([far, near, apart], cam, radius=3.0, depth=1.0)
+    assert len(out) == 3 and out[1] is near and out[2] is apart
+    px_far, px_near = cam.project(far.points), cam.project(near.points)
+    gap = np.min(np.linalg.norm(px_far[:, None] - px_near[None], axis=2), axis=1)
+    assert np.array_equal(out[0].w, far.w[gap >= 3.0])
+    assert 0 < len(far.w) - len(out[0].w) <= 4
+    # nothing nearer by more than depth: nothing dropped
+    same = chain(np.arange(538.0, 560.0), np.full(22, 302.0), 600.5)
+    assert drop_occluded([far, same], cam, radius=3.0, depth=1.0)[0] is far
