@@ -459,6 +459,38 @@ def test_reconstruct_cli_without_truth_and_evaluate(small_scan, tmp_path, capsys
     assert len(ev["views"]) == 2
 
 
+def test_samples_beside_an_occluding_contour_are_left_out_of_the_patches(small_scan):
+    """View 0 of the small teapot scan (the true rig): with the samples within 3 px of a
+    nearer surface dropped (``drop_occluded``, the default) the worst of the Gordon patches'
+    10 x 10 samples is 0.70 mm from the true surface; with them kept (``occlusion_px=None``,
+    the code before) 1.20 mm (measured 2026-12-02: 0.695 and 1.198 mm)."""
+    from nurbscan.camera import load_rig
+    from nurbscan.io import read_image
+    from nurbscan.reconstruct.pipeline import plan_scan, reconstruct_detection
+    from nurbscan.reconstruct.view import reconstruct_view
+    from nurbscan.simulate.scenes import scene_from_dict
+
+    rig = load_rig(small_scan / "truth" / "rig.json")
+    scene = scene_from_dict(json.loads((small_scan / "truth" / "scene.json").read_text()))
+    task = plan_scan(small_scan, rig, views=[0]).tasks[0]
+    det = reconstruct_detection(read_image(task.grid, as_float=False), task.pattern,
+                                read_image(task.white, as_float=False), rig)
+
+    def worst(**kw):
+        res = reconstruct_view(det, rig, task.pattern, **kw)
+        X = np.concatenate([_grid_samples(p.gordon) for p in res.patches])
+        return scene.closest_point(rig_to_object(X, rig.turntable, task.angle))[1].max()
+
+    assert worst() < 0.8
+    assert worst(occlusion_px=None) > 1.0
+
+
+def _grid_samples(surface, n=10):
+    (u0, u1), (v0, v1) = surface.domain
+    uu, vv = np.meshgrid(np.linspace(u0, u1, n), np.linspace(v0, v1, n))
+    return surface.evaluate(uu.ravel(), vv.ravel())
+
+
 def test_views_in_two_processes_give_the_same_model(small_scan):
     from nurbscan.camera import load_rig
     from nurbscan.reconstruct import reconstruct_scan
