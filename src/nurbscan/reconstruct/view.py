@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .network import NetLine, Patch, build_network, line_curves
-from .triangulate import Line3D, triangulate_lines
+from .triangulate import Line3D, drop_occluded, triangulate_lines
 
 
 @dataclass
@@ -51,8 +51,8 @@ class ViewResult:
 
 
 def reconstruct_view(det, rig, pattern=None, *, min_curves: int = 3,
-                     crossing_tol: float | None = None, knot_spacing: float = 12.0
-                     ) -> ViewResult:
+                     crossing_tol: float | None = None, knot_spacing: float = 12.0,
+                     occlusion_px: float | None = 3.0) -> ViewResult:
     """Reconstruct one view from its detection result (method.md section 5, steps 1-4).
 
     Parameters
@@ -85,9 +85,16 @@ def reconstruct_view(det, rig, pattern=None, *, min_curves: int = 3,
         band 6 px.
     knot_spacing : float
         Knot spacing of the 2-D curve fits, camera px.
+    occlusion_px : float or None
+        Samples within this many camera px of a sample more than 1 mm nearer the camera are
+        dropped before the network is built (:func:`~nurbscan.reconstruct.triangulate.
+        drop_occluded`: the edge beside an occluding contour is shifted by its blur); None
+        keeps them.
     """
     t0 = time.perf_counter()
     lines = triangulate_lines(det, rig, knot_spacing=knot_spacing, min_points=4)
+    if occlusion_px is not None:
+        lines = drop_occluded(lines, rig.camera, radius=occlusion_px)
     t1 = time.perf_counter()
     if crossing_tol is None:
         pts = [ln.points for ln in lines if len(ln.points)]
