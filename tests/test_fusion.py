@@ -108,6 +108,35 @@ def test_triangle_budget():
     assert err.mean() < 0.01, err.mean()
 
 
+def test_loose_edge_points_are_fused_with_their_normals():
+    """``loose_edges``: edge points of lines outside every patch (here the cap's rim band,
+    polar angle 50-60 degrees, where the patch samples stop at 45) are returned, those within
+    the reach of a patch sample are not, and their normals (PCA of neighbouring edge points)
+    are the sphere's radial normals (oracle), turned outwards like the model's samples."""
+    from nurbscan.merge.fusion import _loose_edges
+    from nurbscan.reconstruct import Model
+
+    rng = np.random.default_rng(5)
+    N = _cap(20000, math.radians(60), rng)
+    polar = np.degrees(np.arccos(N[:, 2]))
+    # edge points on the whole 60-degree cap (noise free), patch samples only up to 45
+    # degrees
+    edges = N * RS
+    patch = N[polar < 45] * RS
+    model = Model(views=[{"index": 0, "table_angle": 0.0}], points=patch,
+                  normals=N[polar < 45], point_view=np.zeros(len(patch), int),
+                  edge_points=edges, edge_view=np.zeros(len(edges), int))
+    E, EN = _loose_edges(model, patch, edges, 2.0, {})
+    pe = np.degrees(np.arccos(E[:, 2] / RS))
+    # 2 mm beyond the patches' border, give or take the samples' spacing (0.4 mm)
+    assert len(E) and pe.min() >= 45 + np.degrees(1.5 / RS), pe.min()
+    assert len(E) >= (polar > 45 + np.degrees(2.5 / RS)).sum()
+    cos = np.einsum("ij,ij->i", EN, E / RS)
+    assert np.allclose(np.linalg.norm(EN, axis=1), 1) and cos.min() > 0.99, cos.min()
+    none = _loose_edges(model, edges, edges, 2.0, {})
+    assert len(none[0]) == 0
+
+
 def test_bad_options():
     with pytest.raises(NurbscanError, match="max-triangles"):
         FusionOptions(max_triangles=10)
