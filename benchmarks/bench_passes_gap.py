@@ -25,7 +25,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -33,7 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_passes import pose_matrix  # noqa: E402
+from bench_passes import emit, pose_matrix  # noqa: E402
 from bench_passes_bound import seen_by_views  # noqa: E402
 
 
@@ -89,11 +88,7 @@ def main(argv=None) -> int:
            "seen_not_covered": float(miss.mean()),
            "covered_not_seen": float((covered & ~vis).mean()),
            "classes": {k: round(float(v.mean()), 5) for k, v in classes.items()}}
-    text = json.dumps(out, indent=1)
-    print(text)
-    if args.json:
-        args.json.write_text(text)
-    return 0
+    return emit(out, args.json)
 
 
 if __name__ == "__main__":
