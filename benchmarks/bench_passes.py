@@ -80,6 +80,15 @@ def rms_true_pose(model_b, model_a, T_true: np.ndarray) -> float:
     return mesh_overlap_rms(P, T_true, model_a.fused, PassOptions().alignment.overlap_distance)[1]
 
 
+def emit(out: dict, path: Path | None) -> int:
+    """Print ``out`` as JSON (and write it to ``path``); 0."""
+    text = json.dumps(out, indent=1)
+    print(text)
+    if path:
+        path.write_text(text)
+    return 0
+
+
 def main(argv=None) -> int:
     from nurbscan.io.atomic import read_json
     from nurbscan.reconstruct import load_model
@@ -126,11 +135,7 @@ def main(argv=None) -> int:
         "rms_true_pose_mm": rms_true_pose(models["pass_b"], models["pass_a"], T_true),
         "object_radius_mm": radius, "warnings": rep["warnings"],
         "merge_s": rep.get("total_s")}
-    text = json.dumps(out, indent=1)
-    print(text)
-    if args.json:
-        args.json.write_text(text)
-    return 0
+    return emit(out, args.json)
 
 
 if __name__ == "__main__":

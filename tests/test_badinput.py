@@ -182,6 +182,37 @@ def test_evaluate_refuses_a_model_view_without_its_truth_file(tmp_path, capsys):
     assert [v["index"] for v in ev["views"]] == [0, 1]
 
 
+def test_evaluate_takes_a_merged_model_against_its_first_pass_truth(tmp_path, capsys):
+    """A merged model (views 0 of pass 0, 100 of pass 1) against the first pass's truth
+    (view_00.npz only): evaluated (exit 0), view 100 with coverage None, as ``demo --passes
+    2`` does (the check above refused it: the demo exited 2 and removed its folder); a
+    first-pass view without its file is still refused."""
+    import numpy as np
+
+    from nurbscan.reconstruct import Model
+    from nurbscan.simulate.scenes import make_scene
+
+    truth = tmp_path / "truth"
+    truth.mkdir()
+    (truth / "scene.json").write_text(json.dumps(make_scene("sphere").to_dict()))
+    np.savez(truth / "view_00.npz", surface_id=np.full((4, 4), -1),
+             point_obj=np.zeros((4, 4, 3)))
+    n = 5
+    views = [{"index": 0, "table_angle": 0.0, "pass": 0},
+             {"index": 100, "table_angle": 0.0, "pass": 1}]
+    argv = ["evaluate", str(tmp_path / "m"), "--truth", str(truth), "-o",
+            str(tmp_path / "ev.json"), "-q"]
+    for extra, status in (([], 0), ([{"index": 1, "table_angle": 3.0, "pass": 0}], 2)):
+        Model(views=views + extra, points=np.ones((n, 3)), normals=np.ones((n, 3)) / 3 ** 0.5,
+              point_view=np.zeros(n, int)).save(tmp_path / "m")
+        assert main(argv) == status
+        err = capsys.readouterr().err
+        if status:
+            assert "view_01.npz" in err and "view 100" not in err, err
+    ev = json.loads((tmp_path / "ev.json").read_text())
+    assert [(v["index"], v["coverage"]) for v in ev["views"]] == [(0, None), (100, None)]
+
+
 @pytest.mark.parametrize("scene", ["[1, 2]", '{"type": "nurbscan.scene", "name": "dragon"}'])
 def test_evaluate_names_scene_json_when_it_is_not_a_scene(tmp_path, capsys, scene):
     import numpy as np

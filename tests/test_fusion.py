@@ -108,6 +108,35 @@ def test_triangle_budget():
     assert err.mean() < 0.01, err.mean()
 
 
+def test_loose_edge_points_are_fused_with_their_normals():
+    """``loose_edges``: edge points of lines outside every patch (here the cap's rim band,
+    polar angle 50-60 degrees, where the patch samples stop at 45) are returned, those within
+    the reach of a patch sample are not, and their normals (PCA of neighbouring edge points)
+    are the sphere's radial normals (oracle), turned outwards like the model's samples."""
+    from nurbscan.merge.fusion import _loose_edges
+    from nurbscan.reconstruct import Model
+
+    rng = np.random.default_rng(5)
+    N = _cap(20000, math.radians(60), rng)
+    polar = np.degrees(np.arccos(N[:, 2]))
+    # edge points on the whole 60-degree cap (noise free), patch samples only up to 45
+    # degrees
+    edges = N * RS
+    patch = N[polar < 45] * RS
+    model = Model(views=[{"index": 0, "table_angle": 0.0}], points=patch,
+                  normals=N[polar < 45], point_view=np.zeros(len(patch), int),
+                  edge_points=edges, edge_view=np.zeros(len(edges), int))
+    E, EN = _loose_edges(model, patch, edges, 2.0, {})
+    pe = np.degrees(np.arccos(E[:, 2] / RS))
+    # 2 mm beyond the patches' border, give or take the samples' spacing (0.4 mm)
+    assert len(E) and pe.min() >= 45 + np.degrees(1.5 / RS), pe.min()
+    assert len(E) >= (polar > 45 + np.degrees(2.5 / RS)).sum()
+    cos = np.einsum("ij,ij->i", EN, E / RS)
+    assert np.allclose(np.linalg.norm(EN, axis=1), 1) and cos.min() > 0.99, cos.min()
+    none = _loose_edges(model, edges, edges, 2.0, {})
+    assert len(none[0]) == 0
+
+
 def test_bad_options():
     with pytest.raises(NurbscanError, match="max-triangles"):
         FusionOptions(max_triangles=10)
@@ -180,6 +209,54 @@ def test_fused_mesh_accuracy_area_and_parts(scan_model):
     assert n <= data_parts, (n, data_parts)
     patches = build_mesh(loaded, per_span=4).trimesh()
     assert patches.area > 1.3 * fu["gordon_covered_area_mm2"], patches.area
+
+
+def test_a_pass_made_for_a_merge_fuses_only_its_alignment_surface(scan_model, tmp_path):
+    """``alignment_fusion`` (each pass of ``reconstruct SCAN_A SCAN_B``, which the merge fuses
+    again): the Poisson surface trimmed and projected, not subdivided nor coloured, and as
+    close to the truth as the full mesh (exact distances of area-uniform samples to the true
+    teapot: mean within 10 % of the full mesh's, area within 1 %); the pass is still a model
+    folder that loads back with it."""
+    from nurbscan.camera import load_rig
+    from nurbscan.merge import fuse_model
+    from nurbscan.merge.fusion import alignment_fusion
+    from nurbscan.reconstruct import load_model
+    from nurbscan.simulate.scenes import make_scene
+
+    root, model, loaded, ev = scan_model
+    rig = load_rig(root / "scan" / "truth" / "rig.json")
+    white = {int(v["index"]): root / "scan" / "views" / f"view_{int(v['index']):02d}_white.png"
+             for v in model.views}
+    assert all(p.is_file() for p in white.values())
+    full = model.fused.info
+    fm = fuse_model(model, rig, white, alignment_fusion(FusionOptions(max_triangles=40000)))
+    info = fm.info
+    assert info["purpose"].startswith("a pass's alignment surface")
+    assert full["purpose"] == "the object's mesh"
+    # not subdivided: a quarter of the full fusion's triangles before the decimation
+    assert info["before_decimation"] == pytest.approx(full["before_decimation"] / 4, rel=0.05)
+    assert info["faces"] <= 40000
+    assert "not coloured" in info["colour"] and np.all(fm.colors[:, :3] == 180)
+    scene = make_scene("teapot")
+    err = {}
+    for name, mesh in (("full", model.fused), ("alignment", fm)):
+        tm = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+        S, _ = trimesh.sample.sample_surface(tm, 20000, seed=0)
+        err[name] = (float(scene.closest_point(S)[1].mean()), tm.area)
+    assert err["alignment"][0] < 1.1 * err["full"][0], err
+    assert abs(err["alignment"][1] / err["full"][1] - 1) < 0.01, err
+    m = load_model(_saved(model, fm, tmp_path))
+    assert len(m.fused.faces) == info["faces"] and m.fused.info["purpose"] == info["purpose"]
+
+
+def _saved(model, fused, folder):
+    """``model`` with ``fused`` as its mesh, saved into ``folder / "pass"``."""
+    import copy
+
+    m = copy.copy(model)
+    m.fused = fused
+    m.save(folder / "pass")
+    return folder / "pass"
 
 
 def test_fused_mesh_colours_from_the_white_images(scan_model):

@@ -218,14 +218,15 @@ def test_reconstruct_of_several_scans_reconstructs_each_then_merges(tmp_path, mo
 
     calls, merged = [], {}
     monkeypatch.setattr(reconstruct_cli, "_run_one",
-                        lambda a: calls.append((a.scan, a.calib, a.output)) or 0)
+                        lambda a: calls.append((a.scan, a.calib, a.output, a.for_merge)) or 0)
     monkeypatch.setattr(merge_cli, "run", lambda a: merged.update(vars(a)) or 0)
     out = tmp_path / "m"
     assert main(["reconstruct", "sa", "sb", "--calib", "ca.json", "cb.json", "-o", str(out),
                  "-q", "--max-triangles", "1000"]) == 0
     passes = [tmp_path / "m-pass1", tmp_path / "m-pass2"]
-    assert calls == [(Path("sa"), Path("ca.json"), passes[0]),
-                     (Path("sb"), Path("cb.json"), passes[1])]
+    # each pass fuses only its alignment surface (fusion.alignment_fusion): the merge fuses
+    assert calls == [(Path("sa"), Path("ca.json"), passes[0], True),
+                     (Path("sb"), Path("cb.json"), passes[1], True)]
     assert merged["models"] == passes and merged["output"] == out
     assert merged["scan"] == [Path("sa"), Path("sb")]
     assert merged["calib"] == [Path("ca.json"), Path("cb.json")]

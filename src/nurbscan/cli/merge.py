@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
                       registration=None if args.no_refine else RegistrationOptions(
                           max_misclosure=args.max_misclosure),
                       fusion=None if args.no_fuse else FusionOptions(
-                          max_triangles=args.max_triangles))
+                          max_triangles=args.max_triangles, loose_edges=0.5))
     colour = None if args.no_fuse or args.no_colour else pass_colours(args, models, say)
     merged, report = merge_passes(models, [str(m) for m in args.models], opt, progress=say,
                                   colour=colour)

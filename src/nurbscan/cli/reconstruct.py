@@ -84,7 +84,9 @@ def run(args: argparse.Namespace) -> int:
 def run_passes(args: argparse.Namespace, scans: list, calibs: list) -> int:
     """Reconstruct every scan folder into ``OUTPUT-passK`` (K = 1, 2, ...), then merge the
     passes into ``OUTPUT`` (:func:`nurbscan.cli.merge.run` with its default settings, the
-    colours from the scans' white images)."""
+    colours from the scans' white images). Each pass's fused mesh is only its alignment
+    surface (:func:`nurbscan.merge.fusion.alignment_fusion`: not subdivided, grey): the merge
+    fuses every pass's views again into the model's mesh."""
     from ..errors import NurbscanError
     from . import build_parser
     from . import merge as merge_cli
@@ -102,7 +104,8 @@ def run_passes(args: argparse.Namespace, scans: list, calibs: list) -> int:
             print(f"nurbscan reconstruct: pass {k + 1} of {len(scans)}: {scan} -> {folder}",
                   file=sys.stderr, flush=True)
         partial = _run_one(argparse.Namespace(**{**vars(args), "scan": scan, "calib": calib,
-                                                 "output": folder})) == PARTIAL or partial
+                                                 "output": folder, "for_merge": True})
+                           ) == PARTIAL or partial
     argv = ["merge", *map(str, folders), "-o", str(out),
             "--max-triangles", str(args.max_triangles)]
     for k, scan in enumerate(scans):
@@ -122,7 +125,7 @@ def _run_one(args: argparse.Namespace) -> int:
     from ..io import load_scan
     from ..io.atomic import atomic_folder, read_json
     from ..merge import MergeOptions, MergeWarning, RegistrationOptions, TableOptions
-    from ..merge.fusion import FusionOptions
+    from ..merge.fusion import FusionOptions, alignment_fusion
     from ..reconstruct import reconstruct_scan
     from ..reconstruct.model import MODEL_FILES
 
@@ -137,6 +140,8 @@ def _run_one(args: argparse.Namespace) -> int:
                                                         radius=args.table_radius),
         registration=None if args.no_register else RegistrationOptions())
     fusion = None if args.no_fuse else FusionOptions(max_triangles=args.max_triangles)
+    if fusion is not None and getattr(args, "for_merge", False):
+        fusion = alignment_fusion(fusion)  # the merge fuses all passes' views again
     t0 = time.perf_counter()
     rig = load_rig(args.calib)
     tt_ok = turntable_calibrated(read_json(args.calib))

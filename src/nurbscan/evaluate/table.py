@@ -351,7 +351,9 @@ def evaluate_model(model, truth_dir: str | os.PathLike, n_samples: int = 100,
     except (TypeError, ValueError, KeyError) as exc:  # fields of the wrong kind
         raise NurbscanError(f"{truth / 'scene.json'}: not a nurbscan scene ({exc})") from None
     have = {f.stem.split("_")[1] for f in truth.glob("view_*.npz")}
-    for idx in (int(v["index"]) for v in model.views):  # else left out of the coverage
+    # else left out of the coverage; the views of a merged model's further passes
+    # (nurbscan.merge.passes: ``pass`` >= 1) have their truth in their own scan, not here
+    for idx in (int(v["index"]) for v in model.views if int(v.get("pass", 0)) == 0):
         if f"{idx:02d}" not in have:
             raise NurbscanError(f"{truth / f'view_{idx:02d}.npz'}: no truth file of the "
                                 f"model's view {idx}")
