@@ -155,10 +155,10 @@ def _seam_curve(X: np.ndarray, smooth: int, tol: float):
     """A ``Geom_BSplineCurve`` through the polyline ``X`` (n, 3): its inner points smoothed
     (``smooth`` rounds of the mean of each point and its two neighbours, ends fixed), then
     approximated (``GeomAPI_PointsToBSpline``, cubic, C2, within ``tol`` mm)."""
+    from OCP.collections import Array1_gp_Pnt
     from OCP.GeomAbs import GeomAbs_C2
     from OCP.GeomAPI import GeomAPI_PointsToBSpline
     from OCP.gp import gp_Pnt
-    from OCP.collections import Array1_gp_Pnt
 
     X = np.array(X, float)
     for _ in range(smooth if len(X) > 2 else 0):

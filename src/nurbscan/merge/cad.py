@@ -475,8 +475,9 @@ def _inside(S: NurbsSurface, X: np.ndarray, tol: float, iters: int = 12) -> np.n
 
 def _closest(S: NurbsSurface, X: np.ndarray, iters: int = 12, k: int = 8):
     """Distance of each point to its closest point on ``S``, whether that point lies
-    strictly inside the domain and its parameters ``u``, ``v`` (Newton on ``(S - X) . S_u = (S - X) . S_v = 0`` from the
-    nearest of ``k x k`` samples, clamped to the domain; Piegl and Tiller section 6.1)."""
+    strictly inside the domain, and its parameters ``u``, ``v`` (Newton on
+    ``(S - X) . S_u = (S - X) . S_v = 0`` from the nearest of ``k x k`` samples, clamped to
+    the domain; Piegl and Tiller section 6.1)."""
     (u0, u1), (v0, v1) = S.domain
     t = (np.arange(k) + 0.5) / k
     uu, vv = np.meshgrid(u0 + (u1 - u0) * t, v0 + (v1 - v0) * t, indexing="ij")
@@ -750,7 +751,8 @@ def seams(cad: CadSet, fused, options: SeamOptions | None = None) -> Seams:
         L = np.where((maj == -1) | ((maj >= 0) & eligible(np.arange(len(L)), maj)), maj, L)
     # 3. simple regions
     rounds = 0
-    for rounds in range(1, opt.max_rounds + 1):
+    while rounds < opt.max_rounds:
+        rounds += 1
         L, moved = _clean_pieces(L, nb, opt.min_triangles, eligible, connected_components,
                                  coo_matrix)
         L, pinched = _unpinch_regions(L, nb, F, eligible)
@@ -852,7 +854,6 @@ def _unpinch_regions(L, nb, F, eligible):
         return L, False
     n_v = int(F.max()) + 1
     pin = np.unique(u[inv[bad]])
-    lab, vert = pin // n_v, pin % n_v
     # triangles of label lab incident on vertex vert
     tri = np.repeat(np.arange(len(F)), 3)
     tk = L[tri] * n_v + F.ravel()
@@ -864,7 +865,6 @@ def _unpinch_regions(L, nb, F, eligible):
     new = _mode_rows(Ln, exclude=-3)
     L = L.copy()
     L[sel] = np.where(new == -3, -1, new)
-    del lab, vert
     return L, True
 
 
