@@ -21,6 +21,10 @@ from ..nurbs import NurbsSurface
 __all__ = ["occ_face", "occ_surface", "seamed_faces", "sew_faces", "shell_count", "trimmed_faces",
            "write_step"]
 
+#: Sewing tolerance of seamed faces, mm: the seams' vertices lie up to
+#: ``SeamOptions.on_mm`` (0.1) from each side's surface.
+SEAM_TOLERANCE = 0.1
+
 OCP_MISSING = ("STEP export needs OpenCASCADE (OCP): pip install 'nurbscan[cad]' "
                "(cadquery-ocp-novtk)")
 
@@ -279,7 +283,7 @@ def shell_count(shape) -> tuple[int, int]:
 
 
 def write_step(path: str | os.PathLike, surfaces=(), tolerance: float = 0.05,
-               progress=None, trimmed=()) -> Path:
+               progress=None, trimmed=(), seamed=None) -> Path:
     """Write surfaces and trimmed surfaces, sewn into shells, as a STEP file (mm) atomically.
 
     Parameters
@@ -293,6 +297,10 @@ def write_step(path: str | os.PathLike, surfaces=(), tolerance: float = 0.05,
     trimmed : iterable of dict
         Trimmed faces: ``surface``, ``u``, ``v``, ``keep`` as in
         :attr:`nurbscan.merge.cad.CadSet.patches` (:func:`trimmed_faces`).
+    seamed : tuple, optional
+        ``(seams, patches)``: the fused mesh's regions (:func:`nurbscan.merge.cad.seams`)
+        and ``CadSet.patches``, as faces with shared seams (:func:`seamed_faces`), sewn at
+        ``max(tolerance, SEAM_TOLERANCE)``.
     """
     _ocp()
     from OCP.IFSelect import IFSelect_RetDone
@@ -303,6 +311,9 @@ def write_step(path: str | os.PathLike, surfaces=(), tolerance: float = 0.05,
     faces = [occ_face(s) for s in surfaces]
     for p in trimmed:
         faces += trimmed_faces(p["surface"], p["u"], p["v"], p["keep"])
+    if seamed is not None:
+        faces += seamed_faces(*seamed)
+        tolerance = max(tolerance, SEAM_TOLERANCE)
     if not faces:
         raise NurbscanError("STEP export: nothing to write (no surfaces)")
     say(f"STEP: sewing {len(faces)} faces (tolerance {tolerance:g} mm)")

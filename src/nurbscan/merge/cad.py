@@ -601,7 +601,8 @@ class SeamOptions:
     reach_mm : float
         A fused-mesh triangle belongs to the patch of its nearest kept cell within this
         distance (centre to centroid, normals within 60 degrees); farther triangles belong to
-        none (the CAD set does not cover them). Half a cell's diagonal and a little.
+        none (the CAD set does not cover them). A cell's half diagonal (0.21 mm) plus about
+        half a fused-mesh triangle (edges about 0.45 mm on the 1024 x 768 teapot).
     smooth_rounds : int
         Rounds of the majority vote over each triangle's three neighbours.
     near_mm : float
@@ -610,16 +611,23 @@ class SeamOptions:
         A triangle may belong to a patch only when its three vertices lie within this
         distance of the patch's surface (closest point, exact): the seams' vertices then lie
         this close to both surfaces either side, and the faces' edges need no larger
-        tolerance. The views' layers lie a robust standard deviation of 0.03 mm apart.
+        tolerance. 0.1 mm is the CAD set's own limit (``CadOptions.fused_mm``,
+        ``consistent_mm``: 3.3 robust standard deviations of the views' layers' spread).
+    fill_mm : float
+        Triangles left to no region next to a region go to it when their vertices lie
+        within this distance of its surface (step 4 of :func:`seams`): the gaps where two
+        views' layers part by more than ``2 on_mm`` close, the seam there needing an edge
+        tolerance up to ``fill_mm``.
     min_triangles : int
         Smaller pieces of a region (and smaller uncovered holes) go to their neighbours.
     max_rounds : int
         Largest number of clean-up rounds (pieces, pinch vertices) before giving up.
     """
 
-    reach_mm: float = 0.25
+    reach_mm: float = 0.35
     near_mm: float = 1.0
-    on_mm: float = 0.06
+    on_mm: float = 0.1
+    fill_mm: float = 0.3
     smooth_rounds: int = 4
     min_triangles: int = 12
     max_rounds: int = 20
@@ -677,7 +685,11 @@ def seams(cad: CadSet, fused, options: SeamOptions | None = None) -> Seams:
        region's border passes twice (a pinch: the region would touch itself) gives that
        region's triangles there to their most frequent other neighbour. Both are repeated
        until no piece and no pinch is left (at most ``max_rounds``).
-    4. **Seams.** The borders between regions (mesh edges whose two triangles have two
+    4. **Gaps.** Triangles of no region next to a region take its label when their three
+       vertices lie within ``fill_mm`` of its surface (grown until none changes), and step
+       3 is run again with that tolerance: where two views' layers part by more than
+       ``2 on_mm`` the seam closes with a larger edge tolerance rather than leave a gap.
+    5. **Seams.** The borders between regions (mesh edges whose two triangles have two
        labels, or one) are split at junctions into chains, each ONE polyline for both
        regions either side; closed loops are split in two. Each region's boundary loops
        are its chains in order, the region on their left (the mesh is counter-clockwise
@@ -751,14 +763,18 @@ def seams(cad: CadSet, fused, options: SeamOptions | None = None) -> Seams:
         L = np.where((maj == -1) | ((maj >= 0) & eligible(np.arange(len(L)), maj)), maj, L)
     # 3. simple regions
     rounds = 0
-    while rounds < opt.max_rounds:
-        rounds += 1
-        L, moved = _clean_pieces(L, nb, opt.min_triangles, eligible, connected_components,
-                                 coo_matrix)
-        L, pinched = _unpinch_regions(L, nb, F, eligible)
-        if not moved and not pinched:
-            break
-    # 4. seams
+    for fill in (False, True):
+        if fill:  # 4. gaps: uncovered triangles next to a region within fill_mm of it
+            loose = lambda t, lab: eligible(t, lab, opt.fill_mm)  # noqa: E731
+            L = _grow(L, nb, loose, opt.max_rounds * 10)
+        while rounds < opt.max_rounds * (1 + fill):
+            rounds += 1
+            L, moved = _clean_pieces(L, nb, opt.min_triangles, loose if fill else eligible,
+                                     connected_components, coo_matrix)
+            L, pinched = _unpinch_regions(L, nb, F, loose if fill else eligible)
+            if not moved and not pinched:
+                break
+    # 5. seams
     chains, sides, loops = _chains(L, nb, F)
     _outer_first(cad, V, chains, loops)
     info = {"triangles": int(len(F)), "regions": int(len(loops)), "chains": len(chains),
@@ -769,30 +785,46 @@ def seams(cad: CadSet, fused, options: SeamOptions | None = None) -> Seams:
 def _eligible(cad, V, F, tree, own, opt):
     """``eligible(t, label)``: whether triangles ``t`` may belong to patches ``label``
     (arrays of one shape): their three vertices within ``on_mm`` of the patch's surface
-    (:func:`_closest`, for the vertices within ``near_mm`` of one of its kept cells)."""
+    (:func:`_closest`, for the vertices within ``near_mm`` of one of its kept cells);
+    ``eligible(t, label, tol)`` with another distance (at most ``max(on_mm, fill_mm)``)."""
     n_v = len(V)
     d, j = tree.query(V, k=16, distance_upper_bound=opt.near_mm)
     ok = np.isfinite(d)
     vi = np.repeat(np.arange(n_v)[:, None], 16, 1)[ok]
     key = np.unique(own[j[ok]] * n_v + vi)
     pk, vk = key // n_v, key % n_v
-    good = np.zeros(len(key), bool)
+    dist = np.full(len(key), np.inf)
     starts = np.flatnonzero(np.r_[True, pk[1:] != pk[:-1]])
     for a, b in zip(starts, np.r_[starts[1:], len(key)], strict=True):
-        dist = _closest(cad.patches[int(pk[a])]["surface"], V[vk[a:b]], 10, 16)[0]
-        good[a:b] = dist <= opt.on_mm
-    key = key[good]
+        dist[a:b] = _closest(cad.patches[int(pk[a])]["surface"], V[vk[a:b]], 10, 16)[0]
+    keep = dist <= max(opt.on_mm, opt.fill_mm)
+    key, dist = key[keep], dist[keep]
 
-    def eligible(t, label):
+    def eligible(t, label, tol=opt.on_mm):
         t, label = np.broadcast_arrays(np.asarray(t), np.asarray(label))
         out = label >= 0
         for c in range(3):
             q = np.maximum(label, 0) * n_v + F[t, c]
             at = np.minimum(np.searchsorted(key, q), max(len(key) - 1, 0))
-            out &= (key[at] == q) if len(key) else False
+            out &= ((key[at] == q) & (dist[at] <= tol)) if len(key) else False
         return out
 
     return eligible
+
+
+def _grow(L, nb, eligible, rounds):
+    """Triangles of no region next to regions take their neighbours' most frequent label
+    for which they are eligible, repeated (at most ``rounds``) until none changes."""
+    L = L.copy()
+    for _ in range(rounds):
+        idx = np.flatnonzero(L == -1)
+        Ln = np.where(nb[idx] >= 0, L[np.maximum(nb[idx], 0)], -3)
+        Ln = np.where((Ln >= 0) & eligible(idx[:, None], Ln), Ln, -3)
+        has = (Ln >= 0).any(1)
+        if not has.any():
+            break
+        L[idx[has]] = _mode_rows(Ln[has], exclude=-3)
+    return L
 
 
 def _clean_pieces(L, nb, min_triangles, eligible, connected_components, coo_matrix):
