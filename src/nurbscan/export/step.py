@@ -4,6 +4,9 @@ Each surface becomes a ``Geom_BSplineSurface`` (distinct knots and multiplicitie
 weights; OCP's arrays are 1-based) and a face bounded by its natural boundary
 (``BRepBuilderAPI_MakeFace``); the faces are sewn into shells (``BRepBuilderAPI_Sewing``:
 edges within ``tolerance`` mm are joined) and written with ``STEPControl_Writer`` in mm.
+The CAD set of a model with a fused mesh is written as :func:`seamed_faces`: one face per
+region of the fused mesh (:func:`nurbscan.merge.cad.seams`), each seam one 3-D B-spline edge
+used by both faces, so that the faces form shells by construction.
 OCP is the optional extra ``nurbscan[cad]`` (``cadquery-ocp-novtk``).
 """
 
@@ -22,7 +25,8 @@ __all__ = ["occ_face", "occ_surface", "seamed_faces", "sew_faces", "shell_count"
            "write_step"]
 
 #: Sewing tolerance of seamed faces, mm: the seams' vertices lie up to
-#: ``SeamOptions.on_mm`` (0.1) from each side's surface.
+#: ``SeamOptions.on_mm`` (0.1) from each side's surface (up to ``fill_mm``, 0.2, where a gap was
+#: closed: those edges carry their own tolerance).
 SEAM_TOLERANCE = 0.1
 
 OCP_MISSING = ("STEP export needs OpenCASCADE (OCP): pip install 'nurbscan[cad]' "

@@ -35,9 +35,14 @@ coincide, only the best patch, and cuts every patch back to its measured data:
    kept columns), and each rectangle becomes the exact sub-surface of the Gordon surface over
    it (knots inserted to multiplicity ``p`` at its ends, Piegl and Tiller A5.1 per row): no
    refit, the geometry is the patch's (``CadSet.surfaces``, for 3dm and IGES). The kept
-   cells themselves are ``CadSet.patches``: :mod:`nurbscan.export.step` makes one trimmed
-   face per region of them (its :func:`outline` as the trimming wires) and sews the faces
-   into shells (OpenCASCADE).
+   cells themselves are ``CadSet.patches``.
+7. **Seams (STEP).** With the model's fused mesh, :func:`seams` partitions the fused mesh
+   among the kept patches (each triangle to its nearest kept cell's patch, smoothed, simple
+   regions, every vertex of a region within ``SeamOptions.on_mm`` of its surface) and
+   returns the borders between regions as chains, each ONE polyline for both sides;
+   :func:`nurbscan.export.step.seamed_faces` makes each chain one B-spline edge shared by
+   the two faces. Without a fused mesh, STEP makes one trimmed face per region of a patch's
+   kept cells (:func:`outline`: staircase wires, seams one cell wide).
 
 Units: mm, object frame.
 """
@@ -627,7 +632,7 @@ class SeamOptions:
     reach_mm: float = 0.35
     near_mm: float = 1.0
     on_mm: float = 0.1
-    fill_mm: float = 0.3
+    fill_mm: float = 0.2
     smooth_rounds: int = 4
     min_triangles: int = 12
     max_rounds: int = 20
