@@ -209,11 +209,12 @@ def export_model(model, path: str | os.PathLike, fmt: str | None = None,
                     # one face per region of the fused mesh, seams shared by both sides
                     from ..merge.cad import seams
 
-                    part = seams(cad, fused)
-                    if progress:
-                        progress(f"CAD seams: {part.info['regions']} regions, "
-                                 f"{part.info['chains']} seams")
-                    return write_step(path, seamed=(part, cad.patches), progress=progress)
+                    part = seams(cad, fused) if cad.patches else None
+                    if part is not None and part.loops:
+                        if progress:
+                            progress(f"CAD seams: {part.info['regions']} regions, "
+                                     f"{part.info['chains']} seams")
+                        return write_step(path, seamed=(part, cad.patches), progress=progress)
                 # without a fused mesh: one trimmed face per region of a patch's kept cells
                 return write_step(path, trimmed=cad.patches, progress=progress)
             curves, surfaces = [], [(f"cad view {d['view']}", d["surface"])
