@@ -339,3 +339,67 @@ def _validate(path: Path) -> dict:
                           str(modules)], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr
     return json.loads(res.stdout)
+
+
+def test_step_faces_share_their_seams(scan_model, tmp_path):
+    """STEP of the CAD set with the fused mesh (one face per region of the fused mesh, seams
+    one edge shared by both sides, issue 32) read back by OpenCASCADE (STEPControl_Reader):
+    every face valid (BRepCheck_Analyzer), in a shell, no edge of three faces, twice as many
+    edges shared by two faces as there are faces; three shells (the teapot's body with
+    lid, handle and spout pieces) hold 95 % of the area (97.2 % here) and the rest are
+    islands (regions of a patch that no neighbour's surface meets within
+    ``SeamOptions.fill_mm``: 10 here, 6-267 mm2 each, under 1 % of the area, on this
+    coarse scan; 4 shells on the 1024 x 768 demo); the faces' area within 8 % of the CAD
+    set's kept cells (-7.2 % here: the uncovered gaps). The staircase trimmed faces of the
+    kept cells (before, main f71f441) read back as 728 faces in 645 shells, 2 invalid, 73 %
+    of the area in the three largest."""
+    pytest.importorskip("OCP")
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.BRepGProp import BRepGProp
+    from OCP.collections import (
+        IndexedDataMap_TopoDS_Shape_List_TopoDS_Shape_TopTools_ShapeMapHasher as EdgeFaces,
+    )
+    from OCP.GProp import GProp_GProps
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.STEPControl import STEPControl_Reader
+    from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_SHELL
+    from OCP.TopExp import TopExp, TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    from nurbscan.export import export_model, find_rig
+    from nurbscan.export.step import shell_count
+    from nurbscan.merge.cad import cad_set
+
+    def area(shape):
+        g = GProp_GProps()
+        BRepGProp.SurfaceProperties_s(shape, g)
+        return g.Mass()
+
+    def parts(shape, kind):
+        out, ex = [], TopExp_Explorer(shape, kind)
+        while ex.More():
+            out.append(ex.Current())
+            ex.Next()
+        return out
+
+    root, model, loaded, ev = scan_model
+    path = export_model(loaded, tmp_path / "m.step", "step")
+    rd = STEPControl_Reader()
+    assert rd.ReadFile(str(path)) == IFSelect_RetDone
+    rd.TransferRoots()
+    shape = rd.OneShape()
+    faces = [TopoDS.Face(f) for f in parts(shape, TopAbs_FACE)]
+    shells, loose = shell_count(shape)
+    invalid = sum(not BRepCheck_Analyzer(f).IsValid() for f in faces)
+    emap = EdgeFaces()
+    TopExp.MapShapesAndAncestors_s(shape, TopAbs_EDGE, TopAbs_FACE, emap)
+    n_faces = [emap.FindFromIndex(i).Size() for i in range(1, emap.Extent() + 1)]
+    shell_area = sorted((area(s) for s in parts(shape, TopAbs_SHELL)), reverse=True)
+    total = sum(area(f) for f in faces)
+    want = cad_set(loaded, find_rig(loaded)).info["area_mm2"]
+    got = (len(faces), shells, loose, invalid, max(n_faces), sum(shell_area[:3]) / total,
+           total / want)
+    assert len(faces) > 20 and shells <= 15 and loose == 0 and invalid == 0, got
+    assert max(n_faces) <= 2 and n_faces.count(2) >= 2 * len(faces), got
+    assert sum(shell_area[:3]) >= 0.95 * total, got
+    assert abs(total / want - 1) < 0.08, got

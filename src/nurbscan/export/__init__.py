@@ -201,9 +201,21 @@ def export_model(model, path: str | os.PathLike, fmt: str | None = None,
 
                 _ocp()  # before the CAD set's work
             cad = cad_set(model, find_rig(model), progress=progress)
-            if fmt == "step":  # one trimmed face per region of a Gordon patch's kept cells
+            if fmt == "step":
                 from .step import write_step
 
+                fused = getattr(model, "fused", None)
+                if fused is not None and len(fused.faces):
+                    # one face per region of the fused mesh, seams shared by both sides
+                    from ..merge.cad import seams
+
+                    part = seams(cad, fused) if cad.patches else None
+                    if part is not None and part.loops:
+                        if progress:
+                            progress(f"CAD seams: {part.info['regions']} regions, "
+                                     f"{part.info['chains']} seams")
+                        return write_step(path, seamed=(part, cad.patches), progress=progress)
+                # without a fused mesh: one trimmed face per region of a patch's kept cells
                 return write_step(path, trimmed=cad.patches, progress=progress)
             curves, surfaces = [], [(f"cad view {d['view']}", d["surface"])
                                     for d in cad.surfaces]

@@ -4,6 +4,9 @@ Each surface becomes a ``Geom_BSplineSurface`` (distinct knots and multiplicitie
 weights; OCP's arrays are 1-based) and a face bounded by its natural boundary
 (``BRepBuilderAPI_MakeFace``); the faces are sewn into shells (``BRepBuilderAPI_Sewing``:
 edges within ``tolerance`` mm are joined) and written with ``STEPControl_Writer`` in mm.
+The CAD set of a model with a fused mesh is written as :func:`seamed_faces`: one face per
+region of the fused mesh (:func:`nurbscan.merge.cad.seams`), each seam one 3-D B-spline edge
+used by both faces, so that the faces form shells by construction.
 OCP is the optional extra ``nurbscan[cad]`` (``cadquery-ocp-novtk``).
 """
 
@@ -18,7 +21,13 @@ from ..errors import NurbscanError
 from ..io.atomic import atomic_path
 from ..nurbs import NurbsSurface
 
-__all__ = ["occ_face", "occ_surface", "sew_faces", "shell_count", "trimmed_faces", "write_step"]
+__all__ = ["occ_face", "occ_surface", "seamed_faces", "sew_faces", "shell_count", "trimmed_faces",
+           "write_step"]
+
+#: Sewing tolerance of seamed faces, mm: the seams' vertices lie up to
+#: ``SeamOptions.on_mm`` (0.1) from each side's surface (up to ``fill_mm``, 0.2, where a gap was
+#: closed: those edges carry their own tolerance).
+SEAM_TOLERANCE = 0.1
 
 OCP_MISSING = ("STEP export needs OpenCASCADE (OCP): pip install 'nurbscan[cad]' "
                "(cadquery-ocp-novtk)")
@@ -150,6 +159,99 @@ def trimmed_faces(s: NurbsSurface, u: np.ndarray, v: np.ndarray, keep: np.ndarra
     return faces
 
 
+def _seam_curve(X: np.ndarray, smooth: int, tol: float):
+    """A ``Geom_BSplineCurve`` through the polyline ``X`` (n, 3): its inner points smoothed
+    (``smooth`` rounds of the mean of each point and its two neighbours, ends fixed), then
+    approximated (``GeomAPI_PointsToBSpline``, cubic, C2, within ``tol`` mm)."""
+    from OCP.collections import Array1_gp_Pnt
+    from OCP.GeomAbs import GeomAbs_C2
+    from OCP.GeomAPI import GeomAPI_PointsToBSpline
+    from OCP.gp import gp_Pnt
+
+    X = np.array(X, float)
+    for _ in range(smooth if len(X) > 2 else 0):
+        X[1:-1] = (X[:-2] + X[1:-1] + X[2:]) / 3.0
+    if len(X) == 2:
+        X = np.array([X[0], 0.5 * (X[0] + X[1]), X[1]])
+    arr = Array1_gp_Pnt(1, len(X))
+    for i, x in enumerate(X):
+        arr.SetValue(i + 1, gp_Pnt(*map(float, x)))
+    fit = GeomAPI_PointsToBSpline(arr, 3 if len(X) > 3 else 2, 8, GeomAbs_C2, tol)
+    if not fit.IsDone():
+        raise NurbscanError("STEP export: OpenCASCADE could not fit a seam curve")
+    return fit.Curve()
+
+
+def seamed_faces(seams, patches, smooth: int = 3, tol: float = 0.02) -> list:
+    """``TopoDS_Face`` s of the fused mesh's regions (:func:`nurbscan.merge.cad.seams`), each
+    on its Gordon surface, bounded by seams that are ONE edge shared by the faces either side.
+
+    Every chain (a polyline along the fused mesh between junctions) becomes one 3-D
+    B-spline edge (:func:`_seam_curve`: smoothed, ``GeomAPI_PointsToBSpline`` within ``tol``
+    mm) between vertices shared at the junctions. Each region's loops are wires of those
+    edges (reversed where the region lies on the chain's right); the face is
+    ``BRepBuilderAPI_MakeFace(surface, outer wire)`` plus its holes' wires reversed (OCC's
+    convention for ``MakeFace.Add``), and ``ShapeFix_Face`` adds the pcurves (projection of
+    each 3-D edge onto the face's surface) and sets the edges' tolerances to the distance
+    between the curve and the surface (at most about ``SeamOptions.on_mm`` plus ``tol``).
+    The faces share their edges; sewing (:func:`sew_faces`) only joins them into shells.
+
+    Parameters
+    ----------
+    seams : nurbscan.merge.cad.Seams
+    patches : list of dict
+        ``CadSet.patches`` (``surface`` per region label).
+    smooth, tol : int, float
+        See :func:`_seam_curve`.
+
+    Returns
+    -------
+    list of TopoDS_Face
+        One per region, in the order of ``sorted(seams.loops)``.
+    """
+    from OCP.BRepBuilderAPI import (
+        BRepBuilderAPI_MakeEdge,
+        BRepBuilderAPI_MakeFace,
+        BRepBuilderAPI_MakeVertex,
+        BRepBuilderAPI_MakeWire,
+    )
+    from OCP.gp import gp_Pnt
+    from OCP.ShapeFix import ShapeFix_Face
+    from OCP.TopoDS import TopoDS
+
+    V = seams.points
+    ends = np.unique(np.concatenate([[c[0], c[-1]] for c in seams.chains]))
+    verts = {int(i): BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, V[i]))).Vertex()
+             for i in ends}
+    edges = []
+    for c in seams.chains:
+        e = BRepBuilderAPI_MakeEdge(_seam_curve(V[c], smooth, tol), verts[int(c[0])],
+                                    verts[int(c[-1])])
+        if not e.IsDone():
+            raise NurbscanError("STEP export: OpenCASCADE could not make a seam edge")
+        edges.append(e.Edge())
+    faces = []
+    for region, loops in sorted(seams.loops.items()):
+        g = occ_surface(patches[region]["surface"])
+        wires = []
+        for k, loop in enumerate(loops):
+            mw = BRepBuilderAPI_MakeWire()
+            for c, fwd in loop:
+                mw.Add(edges[c] if fwd else TopoDS.Edge(edges[c].Reversed()))
+            if not mw.IsDone():
+                raise NurbscanError("STEP export: OpenCASCADE could not make a seam wire")
+            wires.append(mw.Wire() if k == 0 else TopoDS.Wire(mw.Wire().Reversed()))
+        mk = BRepBuilderAPI_MakeFace(g, wires[0], True)
+        for w in wires[1:]:
+            mk.Add(w)
+        if not mk.IsDone():
+            raise NurbscanError("STEP export: OpenCASCADE could not make a seamed face")
+        sf = ShapeFix_Face(mk.Face())
+        sf.Perform()
+        faces.append(sf.Face())
+    return faces
+
+
 def sew_faces(faces, tolerance: float = 0.05):
     """The faces sewn (``BRepBuilderAPI_Sewing``, edges closer than ``tolerance`` mm
     joined); returns the sewn shape (a shell, or a compound of shells and faces)."""
@@ -185,7 +287,7 @@ def shell_count(shape) -> tuple[int, int]:
 
 
 def write_step(path: str | os.PathLike, surfaces=(), tolerance: float = 0.05,
-               progress=None, trimmed=()) -> Path:
+               progress=None, trimmed=(), seamed=None) -> Path:
     """Write surfaces and trimmed surfaces, sewn into shells, as a STEP file (mm) atomically.
 
     Parameters
@@ -199,6 +301,10 @@ def write_step(path: str | os.PathLike, surfaces=(), tolerance: float = 0.05,
     trimmed : iterable of dict
         Trimmed faces: ``surface``, ``u``, ``v``, ``keep`` as in
         :attr:`nurbscan.merge.cad.CadSet.patches` (:func:`trimmed_faces`).
+    seamed : tuple, optional
+        ``(seams, patches)``: the fused mesh's regions (:func:`nurbscan.merge.cad.seams`)
+        and ``CadSet.patches``, as faces with shared seams (:func:`seamed_faces`), sewn at
+        ``max(tolerance, SEAM_TOLERANCE)``.
     """
     _ocp()
     from OCP.IFSelect import IFSelect_RetDone
@@ -209,6 +315,9 @@ def write_step(path: str | os.PathLike, surfaces=(), tolerance: float = 0.05,
     faces = [occ_face(s) for s in surfaces]
     for p in trimmed:
         faces += trimmed_faces(p["surface"], p["u"], p["v"], p["keep"])
+    if seamed is not None:
+        faces += seamed_faces(*seamed)
+        tolerance = max(tolerance, SEAM_TOLERANCE)
     if not faces:
         raise NurbscanError("STEP export: nothing to write (no surfaces)")
     say(f"STEP: sewing {len(faces)} faces (tolerance {tolerance:g} mm)")

@@ -35,9 +35,14 @@ coincide, only the best patch, and cuts every patch back to its measured data:
    kept columns), and each rectangle becomes the exact sub-surface of the Gordon surface over
    it (knots inserted to multiplicity ``p`` at its ends, Piegl and Tiller A5.1 per row): no
    refit, the geometry is the patch's (``CadSet.surfaces``, for 3dm and IGES). The kept
-   cells themselves are ``CadSet.patches``: :mod:`nurbscan.export.step` makes one trimmed
-   face per region of them (its :func:`outline` as the trimming wires) and sews the faces
-   into shells (OpenCASCADE).
+   cells themselves are ``CadSet.patches``.
+7. **Seams (STEP).** With the model's fused mesh, :func:`seams` partitions the fused mesh
+   among the kept patches (each triangle to its nearest kept cell's patch, smoothed, simple
+   regions, every vertex of a region within ``SeamOptions.on_mm`` of its surface) and
+   returns the borders between regions as chains, each ONE polyline for both sides;
+   :func:`nurbscan.export.step.seamed_faces` makes each chain one B-spline edge shared by
+   the two faces. Without a fused mesh, STEP makes one trimmed face per region of a patch's
+   kept cells (:func:`outline`: staircase wires, seams one cell wide).
 
 Units: mm, object frame.
 """
@@ -53,8 +58,8 @@ from ..errors import NurbscanError
 from ..nurbs import NurbsSurface
 from ..nurbs.curve import insert_knot_h
 
-__all__ = ["CadOptions", "CadSet", "cad_set", "outline", "overlap_area", "sub_surface",
-           "unpinched"]
+__all__ = ["CadOptions", "CadSet", "SeamOptions", "Seams", "cad_set", "outline", "overlap_area",
+           "seams", "sub_surface", "unpinched"]
 
 
 @dataclass(frozen=True)
@@ -468,9 +473,17 @@ def overlap_area(surfaces: list, n: int = 12, tol: float = 0.1) -> dict:
 
 def _inside(S: NurbsSurface, X: np.ndarray, tol: float, iters: int = 12) -> np.ndarray:
     """Whether each point's closest point on ``S`` is within ``tol`` and strictly inside
-    its domain (Newton on ``(S - X) . S_u = (S - X) . S_v = 0``, clamped)."""
+    its domain (:func:`_closest`)."""
+    d, inside, _, _ = _closest(S, X, iters)
+    return inside & (d < tol)
+
+
+def _closest(S: NurbsSurface, X: np.ndarray, iters: int = 12, k: int = 8):
+    """Distance of each point to its closest point on ``S``, whether that point lies
+    strictly inside the domain, and its parameters ``u``, ``v`` (Newton on
+    ``(S - X) . S_u = (S - X) . S_v = 0`` from the nearest of ``k x k`` samples, clamped to
+    the domain; Piegl and Tiller section 6.1)."""
     (u0, u1), (v0, v1) = S.domain
-    k = 8
     t = (np.arange(k) + 0.5) / k
     uu, vv = np.meshgrid(u0 + (u1 - u0) * t, v0 + (v1 - v0) * t, indexing="ij")
     G = S.evaluate(uu.ravel(), vv.ravel())
@@ -494,7 +507,7 @@ def _inside(S: NurbsSurface, X: np.ndarray, tol: float, iters: int = 12) -> np.n
     d = np.linalg.norm(S.evaluate(u, v) - X, axis=1)
     eu, ev = 1e-6 * (u1 - u0), 1e-6 * (v1 - v0)
     inside = (u > u0 + eu) & (u < u1 - eu) & (v > v0 + ev) & (v < v1 - ev)
-    return inside & (d < tol)
+    return d, inside, u, v
 
 
 def unpinched(mask: np.ndarray) -> np.ndarray:
@@ -581,3 +594,411 @@ def _corners(P: np.ndarray) -> np.ndarray:
 def _signed_area(P: np.ndarray) -> float:
     x, y = P[:, 0].astype(float), P[:, 1].astype(float)
     return 0.5 * float((x * np.roll(y, -1) - np.roll(x, -1) * y).sum())
+
+
+# ---------------------------------------------------------------------------- seams (STEP)
+@dataclass(frozen=True)
+class SeamOptions:
+    """Settings of :func:`seams`.
+
+    Attributes
+    ----------
+    reach_mm : float
+        A fused-mesh triangle belongs to the patch of its nearest kept cell within this
+        distance (centre to centroid, normals within 60 degrees); farther triangles belong to
+        none (the CAD set does not cover them). A cell's half diagonal (0.21 mm) plus about
+        half a fused-mesh triangle (edges about 0.45 mm on the 1024 x 768 teapot).
+    smooth_rounds : int
+        Rounds of the majority vote over each triangle's three neighbours.
+    near_mm : float
+        A fused-mesh vertex is a candidate of the patches with a kept cell centre this close.
+    on_mm : float
+        A triangle may belong to a patch only when its three vertices lie within this
+        distance of the patch's surface (closest point, exact): the seams' vertices then lie
+        this close to both surfaces either side, and the faces' edges need no larger
+        tolerance. 0.1 mm is the CAD set's own limit (``CadOptions.fused_mm``,
+        ``consistent_mm``: 3.3 robust standard deviations of the views' layers' spread).
+    fill_mm : float
+        Triangles left to no region next to a region go to it when their vertices lie
+        within this distance of its surface (step 4 of :func:`seams`): the gaps where two
+        views' layers part by more than ``2 on_mm`` close, the seam there needing an edge
+        tolerance up to ``fill_mm``.
+    min_triangles : int
+        Smaller pieces of a region (and smaller uncovered holes) go to their neighbours.
+    max_rounds : int
+        Largest number of clean-up rounds (pieces, pinch vertices) before giving up.
+    """
+
+    reach_mm: float = 0.35
+    near_mm: float = 1.0
+    on_mm: float = 0.1
+    fill_mm: float = 0.2
+    smooth_rounds: int = 4
+    min_triangles: int = 12
+    max_rounds: int = 20
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Seams:
+    """The fused mesh partitioned among the CAD set's kept patches (:func:`seams`).
+
+    Attributes
+    ----------
+    points : ndarray (N, 3)
+        The fused mesh's vertices.
+    labels : ndarray (F,) int
+        Per fused-mesh triangle the index of its patch in ``CadSet.patches``, -1 for none.
+    chains : list of ndarray
+        The seams: vertex indices of polylines along the mesh's edges, each between two
+        junctions (vertices where three regions meet, or two meet the mesh's or the set's
+        border), every one shared by the two regions either side.
+    sides : ndarray (C, 2) int
+        Per chain the region on its left when walked forward and the one on its right
+        (-1: no region, a free border).
+    loops : dict
+        Per region (patch index) its boundary loops, each a list of ``(chain, forward)``
+        with the region on the left seen from outside (the fused mesh's orientation); the
+        outer loop first (largest area in the surface's parameter plane).
+    info : dict
+        Counts.
+    """
+
+    points: np.ndarray
+    labels: np.ndarray
+    chains: list
+    sides: np.ndarray
+    loops: dict
+    info: dict = field(default_factory=dict)
+
+
+def seams(cad: CadSet, fused, options: SeamOptions | None = None) -> Seams:
+    """Partition the fused mesh among the CAD set's kept patches; the seams between regions.
+
+    1. **Labels.** Each triangle of the fused mesh (one body, screened Poisson of all views,
+       :mod:`nurbscan.merge.fusion`) goes to the patch of its nearest kept cell centre
+       within ``reach_mm`` whose normal is within 60 degrees (one k-nearest query); farther
+       triangles go to none.
+    2. **Smoothing.** ``smooth_rounds`` of a majority vote: a triangle takes the label two
+       of its three edge neighbours share.
+    3. **Simple regions.** Every region keeps its largest edge-connected piece; its other
+       pieces, and pieces of any label smaller than ``min_triangles``, take their
+       neighbours' most frequent label (repeated until none is left). A vertex where a
+       region's border passes twice (a pinch: the region would touch itself) gives that
+       region's triangles there to their most frequent other neighbour. Both are repeated
+       until no piece and no pinch is left (at most ``max_rounds``).
+    4. **Gaps.** Triangles of no region next to a region take its label when their three
+       vertices lie within ``fill_mm`` of its surface (grown until none changes), and step
+       3 is run again with that tolerance: where two views' layers part by more than
+       ``2 on_mm`` the seam closes with a larger edge tolerance rather than leave a gap.
+    5. **Seams.** The borders between regions (mesh edges whose two triangles have two
+       labels, or one) are split at junctions into chains, each ONE polyline for both
+       regions either side; closed loops are split in two. Each region's boundary loops
+       are its chains in order, the region on their left (the mesh is counter-clockwise
+       seen from outside).
+
+    Parameters
+    ----------
+    cad : CadSet
+    fused : nurbscan.merge.FusedMesh
+    options : SeamOptions, optional
+
+    Returns
+    -------
+    Seams
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    opt = options or SeamOptions()
+    V = np.asarray(fused.vertices, float)
+    F = np.asarray(fused.faces, np.int64)
+    if not len(F) or not cad.patches:
+        raise NurbscanError("CAD seams: no fused mesh or no kept patch")
+    # 1. labels: nearest kept cell centre
+    Pc, Nc, own = [], [], []
+    for k, p in enumerate(cad.patches):
+        u, v = np.asarray(p["u"]), np.asarray(p["v"])
+        i, j = np.nonzero(p["keep"])
+        D = p["surface"].derivatives(0.5 * (u[i] + u[i + 1]), 0.5 * (v[j] + v[j + 1]), 1)
+        n = np.cross(D[1, 0], D[0, 1])
+        Pc.append(D[0, 0])
+        Nc.append(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300))
+        own.append(np.full(len(i), k))
+    Pc, Nc, own = np.concatenate(Pc), np.concatenate(Nc), np.concatenate(own)
+    A, B, C = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    T = (A + B + C) / 3.0
+    Nt = np.cross(B - A, C - A)
+    Nt /= np.maximum(np.linalg.norm(Nt, axis=1, keepdims=True), 1e-300)
+    tree = cKDTree(Pc)
+    eligible = _eligible(cad, V, F, tree, own, opt)
+    k = min(8, len(Pc))
+    d, j = tree.query(T, k=k, distance_upper_bound=opt.reach_mm)
+    d, j = d.reshape(len(T), k), j.reshape(len(T), k)
+    ok = np.isfinite(d)
+    jj = np.where(ok, j, 0)
+    ok &= np.abs((Nc[jj] * Nt[:, None]).sum(-1)) > 0.5
+    ok &= eligible(np.repeat(np.arange(len(T))[:, None], k, 1), own[jj])
+    first = np.argmax(ok, axis=1)
+    cell = jj[np.arange(len(T)), first]
+    L = np.where(ok.any(1), own[cell], -1)
+    # triangle adjacency: half-edge (t, e) runs F[t, e] -> F[t, (e + 1) % 3]
+    a = F.ravel()
+    b = F[:, [1, 2, 0]].ravel()
+    key = np.minimum(a, b) * len(V) + np.maximum(a, b)
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    nb = np.full(len(a), -1, np.int64)
+    pair = np.flatnonzero(ks[1:] == ks[:-1])
+    single = np.ones(len(pair), bool)
+    if len(pair) > 1:  # an edge of three or more triangles: treated as a border
+        single = np.r_[True, pair[1:] != pair[:-1] + 1] & np.r_[pair[:-1] + 1 != pair[1:], True]
+    pair = pair[single]
+    h0, h1 = order[pair], order[pair + 1]
+    nb[h0], nb[h1] = h1 // 3, h0 // 3
+    nb = nb.reshape(-1, 3)
+    # 2. majority vote
+    for _ in range(opt.smooth_rounds):
+        Ln = np.where(nb >= 0, L[np.maximum(nb, 0)], -2)
+        x, y, z = Ln[:, 0], Ln[:, 1], Ln[:, 2]
+        maj = np.where((x == y) | (x == z), x, np.where(y == z, y, -2))
+        L = np.where((maj == -1) | ((maj >= 0) & eligible(np.arange(len(L)), maj)), maj, L)
+    # 3. simple regions
+    rounds = 0
+    for fill in (False, True):
+        if fill:  # 4. gaps: uncovered triangles next to a region within fill_mm of it
+            loose = lambda t, lab: eligible(t, lab, opt.fill_mm)  # noqa: E731
+            L = _grow(L, nb, loose, opt.max_rounds * 10)
+        while rounds < opt.max_rounds * (1 + fill):
+            rounds += 1
+            L, moved = _clean_pieces(L, nb, opt.min_triangles, loose if fill else eligible,
+                                     connected_components, coo_matrix)
+            L, pinched = _unpinch_regions(L, nb, F, loose if fill else eligible)
+            if not moved and not pinched:
+                break
+    # 5. seams
+    chains, sides, loops = _chains(L, nb, F)
+    _outer_first(cad, V, chains, loops)
+    info = {"triangles": int(len(F)), "regions": int(len(loops)), "chains": len(chains),
+            "triangles_none": int((L < 0).sum()), "rounds": rounds, "options": opt.to_dict()}
+    return Seams(V, L, chains, np.asarray(sides, int).reshape(-1, 2), loops, info)
+
+
+def _eligible(cad, V, F, tree, own, opt):
+    """``eligible(t, label)``: whether triangles ``t`` may belong to patches ``label``
+    (arrays of one shape): their three vertices within ``on_mm`` of the patch's surface
+    (:func:`_closest`, for the vertices within ``near_mm`` of one of its kept cells);
+    ``eligible(t, label, tol)`` with another distance (at most ``max(on_mm, fill_mm)``)."""
+    n_v = len(V)
+    d, j = tree.query(V, k=16, distance_upper_bound=opt.near_mm)
+    ok = np.isfinite(d)
+    vi = np.repeat(np.arange(n_v)[:, None], 16, 1)[ok]
+    key = np.unique(own[j[ok]] * n_v + vi)
+    pk, vk = key // n_v, key % n_v
+    dist = np.full(len(key), np.inf)
+    starts = np.flatnonzero(np.r_[True, pk[1:] != pk[:-1]])
+    for a, b in zip(starts, np.r_[starts[1:], len(key)], strict=True):
+        dist[a:b] = _closest(cad.patches[int(pk[a])]["surface"], V[vk[a:b]], 10, 16)[0]
+    keep = dist <= max(opt.on_mm, opt.fill_mm)
+    key, dist = key[keep], dist[keep]
+
+    def eligible(t, label, tol=opt.on_mm):
+        t, label = np.broadcast_arrays(np.asarray(t), np.asarray(label))
+        out = label >= 0
+        for c in range(3):
+            q = np.maximum(label, 0) * n_v + F[t, c]
+            at = np.minimum(np.searchsorted(key, q), max(len(key) - 1, 0))
+            out &= ((key[at] == q) & (dist[at] <= tol)) if len(key) else False
+        return out
+
+    return eligible
+
+
+def _grow(L, nb, eligible, rounds):
+    """Triangles of no region next to regions take their neighbours' most frequent label
+    for which they are eligible, repeated (at most ``rounds``) until none changes."""
+    L = L.copy()
+    for _ in range(rounds):
+        idx = np.flatnonzero(L == -1)
+        Ln = np.where(nb[idx] >= 0, L[np.maximum(nb[idx], 0)], -3)
+        Ln = np.where((Ln >= 0) & eligible(idx[:, None], Ln), Ln, -3)
+        has = (Ln >= 0).any(1)
+        if not has.any():
+            break
+        L[idx[has]] = _mode_rows(Ln[has], exclude=-3)
+    return L
+
+
+def _clean_pieces(L, nb, min_triangles, eligible, connected_components, coo_matrix):
+    """Every label's largest piece kept (and pieces of at least ``min_triangles`` of -1);
+    the other pieces take their neighbours' most frequent label. Returns (labels, moved)."""
+    m = len(L)
+    t = np.repeat(np.arange(m), 3)
+    o = nb.ravel()
+    same = (o >= 0) & (L[t] == L[np.maximum(o, 0)])
+    g = coo_matrix((np.ones(same.sum()), (t[same], o[same])), shape=(m, m))
+    _, comp = connected_components(g, directed=False)
+    size = np.bincount(comp)
+    # the largest piece of each label >= 0
+    best = np.full(L.max() + 2, -1)
+    order = np.argsort(size[comp], kind="stable")
+    best[L[order] + 1] = comp[order]  # last write wins: the largest
+    orphan = (size[comp] < min_triangles) | ((L >= 0) & (comp != best[L + 1]))
+    moved = bool(orphan.any())
+    for _ in range(1000):
+        if not orphan.any():
+            break
+        Ln = np.where(nb >= 0, L[np.maximum(nb, 0)], -3)
+        On = np.where(nb >= 0, orphan[np.maximum(nb, 0)], True)
+        Ln = np.where(On | ((Ln >= 0) & ~eligible(np.arange(m)[:, None], Ln)), -3, Ln)
+        idx = np.flatnonzero(orphan & (Ln > -3).any(1))
+        if not len(idx):
+            L[orphan] = -1
+            break
+        L[idx] = _mode_rows(Ln[idx], exclude=-3)
+        orphan[idx] = False
+    return L, moved
+
+
+def _mode_rows(X: np.ndarray, exclude: int) -> np.ndarray:
+    """Per row the most frequent value other than ``exclude`` (ties: the first)."""
+    eq = (X[:, :, None] == X[:, None, :]) & (X[:, None, :] != exclude)
+    cnt = np.where(X != exclude, eq.sum(2), -1)
+    return X[np.arange(len(X)), np.argmax(cnt, axis=1)]
+
+
+def _boundary(L, nb, F):
+    """Region border half-edges: (triangle, start vertex, end vertex, other label)."""
+    t = np.repeat(np.arange(len(F)), 3)
+    o = nb.ravel()
+    other = np.where(o >= 0, L[np.maximum(o, 0)], -1)
+    on = (L[t] >= 0) & (other != L[t])
+    a, b = F.ravel(), F[:, [1, 2, 0]].ravel()
+    return t[on], a[on], b[on], other[on]
+
+
+def _unpinch_regions(L, nb, F, eligible):
+    """Regions' triangles at their pinch vertices given to their most frequent other
+    neighbour (-1 when none). Returns (labels, any pinch)."""
+    t, a, _, _ = _boundary(L, nb, F)
+    key = L[t] * (int(F.max()) + 1) + a
+    u, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
+    bad = np.flatnonzero(cnt[inv] > 1)
+    if not len(bad):
+        return L, False
+    n_v = int(F.max()) + 1
+    pin = np.unique(u[inv[bad]])
+    # triangles of label lab incident on vertex vert
+    tri = np.repeat(np.arange(len(F)), 3)
+    tk = L[tri] * n_v + F.ravel()
+    hit = np.isin(tk, pin) & (L[tri] >= 0)
+    sel = np.unique(tri[hit])
+    Ln = np.where(nb[sel] >= 0, L[np.maximum(nb[sel], 0)], -3)
+    Ln = np.where(Ln == L[sel][:, None], -3, Ln)
+    Ln = np.where((Ln >= 0) & ~eligible(sel[:, None], Ln), -3, Ln)
+    new = _mode_rows(Ln, exclude=-3)
+    L = L.copy()
+    L[sel] = np.where(new == -3, -1, new)
+    return L, True
+
+
+def _chains(L, nb, F):
+    """Chains, their sides and the regions' loops (:func:`seams`, step 4)."""
+    t, a, b, other = _boundary(L, nb, F)
+    me = L[t]
+    # each undirected border edge once: the half-edge of the larger label
+    one = me > other
+    ea, eb, el, eo = a[one], b[one], me[one], other[one]
+    # junctions: border degree != 2 or two label pairs at the vertex
+    n_v = int(F.max()) + 1
+    deg = np.bincount(np.r_[ea, eb], minlength=n_v)
+    pk = el * (L.max() + 2) + eo + 1
+    lo = np.full(n_v, np.iinfo(np.int64).max)
+    hi = np.full(n_v, np.iinfo(np.int64).min)
+    np.minimum.at(lo, np.r_[ea, eb], np.r_[pk, pk])
+    np.maximum.at(hi, np.r_[ea, eb], np.r_[pk, pk])
+    junction = (deg != 2) | (lo != hi)
+    # walk: forward adjacency per vertex (edge ids by start and by end)
+    out_e: dict[int, list[int]] = {}
+    in_e: dict[int, list[int]] = {}
+    for e, (x, y) in enumerate(zip(ea.tolist(), eb.tolist(), strict=True)):
+        out_e.setdefault(x, []).append(e)
+        in_e.setdefault(y, []).append(e)
+    used = np.zeros(len(ea), bool)
+    chains, sides = [], []
+
+    def walk(e0):
+        vs = [int(ea[e0]), int(eb[e0])]
+        used[e0] = True
+        while not junction[vs[-1]]:
+            nxt = [f for f in out_e.get(vs[-1], []) if not used[f] and pk[f] == pk[e0]]
+            if not nxt:
+                break
+            used[nxt[0]] = True
+            vs.append(int(eb[nxt[0]]))
+        return vs
+
+    def extend_back(vs, e0):
+        while not junction[vs[0]]:
+            prv = [f for f in in_e.get(vs[0], []) if not used[f] and pk[f] == pk[e0]]
+            if not prv:
+                break
+            used[prv[0]] = True
+            vs.insert(0, int(ea[prv[0]]))
+        return vs
+
+    for e0 in np.argsort(~junction[ea], kind="stable"):  # chains from junctions first
+        if used[e0]:
+            continue
+        vs = extend_back(walk(int(e0)), int(e0))
+        pieces = [vs]
+        if vs[0] == vs[-1]:  # closed: two chains
+            h = len(vs) // 2
+            pieces = [vs[:h + 1], vs[h:]]
+        for piece in pieces:
+            chains.append(np.array(piece, np.int64))
+            sides.append((int(el[e0]), int(eo[e0])))
+    # loops of every region: chain uses linked end to start
+    loops: dict[int, list] = {}
+    uses: dict[int, dict[int, list]] = {}
+    for c, (vs, (left, right)) in enumerate(zip(chains, sides, strict=True)):
+        uses.setdefault(left, {}).setdefault(int(vs[0]), []).append((c, True, int(vs[-1])))
+        if right >= 0:
+            uses.setdefault(right, {}).setdefault(int(vs[-1]), []).append((c, False,
+                                                                           int(vs[0])))
+    for region, starts in uses.items():
+        todo = {(c, f) for lst in starts.values() for c, f, _ in lst}
+        out = []
+        while todo:
+            c0, f0 = min(todo)
+            loop, c, f = [], c0, f0
+            while (c, f) in todo:
+                todo.discard((c, f))
+                loop.append((c, f))
+                end = int(chains[c][-1] if f else chains[c][0])
+                nxt = [(c2, f2) for c2, f2, _ in starts.get(end, []) if (c2, f2) in todo]
+                if not nxt:
+                    break
+                c, f = nxt[0]
+            out.append(loop)
+        loops[region] = out
+    return chains, sides, loops
+
+
+def _outer_first(cad, points, chains, loops):
+    """Each region's loops with its outer loop first: the loop of largest area in the
+    parameter plane of its surface (chain vertices projected, :func:`_closest`; shoelace)."""
+    for region, lst in loops.items():
+        if len(lst) < 2:
+            continue
+        area = []
+        for loop in lst:
+            idx = np.concatenate([chains[c][:-1] if f else chains[c][::-1][:-1]
+                                  for c, f in loop])
+            _, _, u, v = _closest(cad.patches[region]["surface"], points[idx], 10, 16)
+            area.append(abs(float((u * np.roll(v, -1) - np.roll(u, -1) * v).sum())))
+        o = int(np.argmax(area))
+        loops[region] = [lst[o]] + [lp for k, lp in enumerate(lst) if k != o]
