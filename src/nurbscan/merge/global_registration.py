@@ -8,7 +8,9 @@ the two passes' surfaces alone, as desktop scanners do:
    Histograms (FPFH; Rusu, Blodow and Beetz 2009; Open3D ``compute_fpfh_feature``).
 2. **RANSAC** over feature correspondences (Open3D
    ``registration_ransac_based_on_feature_matching``, edge-length and distance checkers),
-   run ``trials`` times with different seeds: a candidate motion per run.
+   run ``trials`` times with different seeds: a candidate motion per run. RANSAC and the
+   ICP of step 3 run on one Open3D thread (:func:`~nurbscan.merge.register.one_open3d_thread`):
+   on its default threads the same inputs gave other candidates from run to run.
 3. **ICP.** Each candidate is refined by point-to-plane ICP (Chen and Medioni 1992; Open3D
    ``registration_icp``), coarse to fine, on denser samples; candidates that converge to the
    same motion are merged.
@@ -35,6 +37,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from ..errors import NurbscanError
+from .register import one_open3d_thread
 
 __all__ = ["Alignment", "GlobalOptions", "align_surfaces", "motion_difference", "overlap_rms"]
 
@@ -212,11 +215,12 @@ def align_surfaces(source: tuple, target: tuple, options: GlobalOptions | None =
     say(f"global registration: {len(s_down.points)} and {len(t_down.points)} FPFH points "
         f"({opt.voxel:g} mm voxels), {opt.trials} RANSAC runs")
     t0 = time.perf_counter()
-    raw = _ransac(o3d, s_down, t_down, s_feat, t_feat, opt)
-    t1 = time.perf_counter()
-    s_icp = src.voxel_down_sample(opt.icp_voxel)
-    t_icp = tgt.voxel_down_sample(opt.icp_voxel)
-    cands = _refine(o3d, s_down, t_down, s_icp, t_icp, raw, opt)
+    with one_open3d_thread():  # Open3D's parallel RANSAC differs from run to run
+        raw = _ransac(o3d, s_down, t_down, s_feat, t_feat, opt)
+        t1 = time.perf_counter()
+        s_icp = src.voxel_down_sample(opt.icp_voxel)
+        t_icp = tgt.voxel_down_sample(opt.icp_voxel)
+        cands = _refine(o3d, s_down, t_down, s_icp, t_icp, raw, opt)
     say(f"global registration: {len(raw)} RANSAC candidates ({t1 - t0:.1f} s), "
         f"{len(cands)} distinct after ICP ({time.perf_counter() - t1:.1f} s)")
     scored = _score(np.asarray(src.points), np.asarray(src.normals), np.asarray(tgt.points),
