@@ -7,6 +7,8 @@ visible table top."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -17,7 +19,7 @@ from nurbscan.merge import (
     off_object,
     register_views,
 )
-from nurbscan.merge.register import _rz, twist_swing
+from nurbscan.merge.register import _chi2_quantile, _rz, twist_swing
 from nurbscan.simulate.scenes import make_scene
 
 TILT = np.radians(20.0)  # the default rig's camera looks down on the table by 20 degrees
@@ -105,6 +107,30 @@ def test_perturbed_angles_are_significant(teapot_views):
     assert reg.applied and reg.significance["significant"], reg.significance
     assert abs(reg.corrections[5].axis_angle - 0.2) < 0.02
     assert max(abs(reg.corrections[v].axis_angle) for v in teapot_views if v != 5) < 0.02
+
+
+def test_significance_quantiles_are_scipy_stats_chi2():
+    """The significance test's chi-square quantiles (computed without importing scipy.stats)
+    are scipy.stats.chi2.ppf's to the bit, at the levels the test uses."""
+    from scipy.stats import chi2
+
+    for p in (0.95, 0.99, 1 - 0.01 / 7, 1 - 0.05 / 15, 1 - 1e-6):
+        for dof in (1, 5, 6):
+            assert _chi2_quantile(p, dof) == float(chi2.ppf(p, dof)), (p, dof)
+    assert abs(_chi2_quantile(0.95, 1) - 3.841458820694124) < 1e-12  # tables: 3.8415
+
+
+def test_open3d_without_its_plotting_stack():
+    """Open3D imported for nurbscan leaves Dash, Plotly and IPython out (0.4 s of its 0.8 s
+    import) and still plots when asked: the deferred ``get_plotly_fig`` imports them then."""
+    code = ("import sys; from nurbscan.merge._open3d import import_open3d; o3d = import_open3d(); "
+            "before = [m for m in ('dash', 'plotly', 'IPython') if m in sys.modules]; "
+            "pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector([[0.0, 0, 0], [1, 2, 3]])); "
+            "fig = o3d.visualization.get_plotly_fig([pc]); "
+            "print(before, type(fig).__module__.split('.')[0], len(fig.data))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.split() == ["[]", "plotly", "1"], out.stdout + out.stderr
 
 
 @pytest.mark.parametrize("scene", ["sphere", "cylinder"])

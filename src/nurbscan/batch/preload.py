@@ -10,7 +10,10 @@
    the export (trimesh, rhino3dm) lazily; imported here, a worker's first task runs as fast as
    its later ones and the imports count in the cluster's start-up, not in a scan's tasks.
    Open3D alone (with the plotting stack it imports) took 0.93 s of the first finish task's
-   5.9 s on a 1024 x 768 scan, the lazy imports 1.59 s in all.
+   5.9 s on a 1024 x 768 scan, the lazy imports 1.59 s in all. Open3D's plotting stack (Dash,
+   Plotly, IPython) is left out (:mod:`nurbscan.merge._open3d`) and the registration's
+   chi-square quantiles need no ``scipy.stats``: the preload's CPU time went from 2.09 to
+   1.57 s (a shared machine; ``python -X importtime -c "import nurbscan.batch.preload"``).
 3. **One OpenCV thread.** Dask's nanny gives each worker ``OMP_NUM_THREADS=1`` (one thread of
    BLAS and OpenMP per worker thread: the parallelism is across tasks), but OpenCV starts its
    own pool of one thread per core in every worker; two workers on two cores then run four
@@ -64,5 +67,4 @@ from .tasks import finish_task  # noqa: E402, F401
 
 _o3d()  # Open3D, imported where the registration and the fusion first need it
 import scipy.ndimage  # noqa: E402, F401
-import scipy.stats  # noqa: E402, F401
 import trimesh  # noqa: E402, F401

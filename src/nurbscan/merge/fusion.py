@@ -29,6 +29,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ..errors import NurbscanError
+from ._open3d import import_open3d
 
 __all__ = ["FusedMesh", "FusionOptions", "alignment_fusion", "decimate", "fuse_model",
            "fuse_samples", "read_fused", "write_fused"]
@@ -448,11 +449,7 @@ def _pitch(model) -> float:
 
 def _open3d():
     """The ``open3d`` module, or a one-line error saying why it cannot be imported."""
-    try:
-        import open3d as o3d
-    except ImportError as exc:  # e.g. libusb-1.0.so.0 missing (Debian: libusb-1.0-0)
-        raise NurbscanError(f"fusion: Open3D cannot be imported ({exc})") from None
-    return o3d
+    return import_open3d("fusion")
 
 
 def _grid_step(Q: np.ndarray) -> float:

@@ -37,6 +37,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from ..errors import NurbscanError
+from ._open3d import import_open3d
 from .register import one_open3d_thread
 
 __all__ = ["Alignment", "GlobalOptions", "align_surfaces", "motion_difference", "overlap_rms"]
@@ -264,12 +265,7 @@ def _refusal(best: dict, opt: GlobalOptions, names: tuple[str, str]) -> str:
 
 # ---------------------------------------------------------------------------- steps
 def _open3d():
-    try:
-        import open3d as o3d
-    except ImportError as exc:
-        raise NurbscanError(f"global registration: Open3D cannot be imported ({exc})") from None
-    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
-    return o3d
+    return import_open3d("global registration")
 
 
 def _cloud(o3d, points, normals):

@@ -40,6 +40,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import NurbscanError
+from ._open3d import import_open3d
 from .frame import moved_curve, moved_points, moved_surface, object_transform
 from .global_registration import (
     Alignment,
@@ -234,8 +235,7 @@ def mesh_overlap_rms(points: np.ndarray, T: np.ndarray, mesh, distance: float):
     """Share of ``points`` (N, 3), moved by ``T``, within ``distance`` (mm) of a triangle mesh
     (``vertices``, ``faces``; exact point-to-triangle distances, Open3D ``RaycastingScene``)
     and the RMS distance over that overlap (mm)."""
-    import open3d as o3d
-
+    o3d = import_open3d("pass overlap")
     X = np.asarray(points, float) @ T[:3, :3].T + T[:3, 3]
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
