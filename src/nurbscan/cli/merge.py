@@ -113,8 +113,8 @@ def run(args: argparse.Namespace) -> int:
               f"overlap {100 * p['overlap']:.1f} %, RMS {p['rms_mm']:.4f} mm over the overlap"
               + ("" if g.get("free_space") is None else
                  f", free-space violation {100 * g['free_space']:.2f} % (chosen by "
-                 f"{g['chosen_by']} among {sum('free_space' in c for c in g['candidates'])} "
-                 "near-equal alignments)")
+                 f"{g['chosen_by']}; candidates "
+                 + ", ".join(f"{100 * c['free_space']:.2f}" for c in g["candidates"]) + " %)")
               + (" (AMBIGUOUS)" if g["ambiguous"] else ""))
         print("  transform (after the joint refinement): "
               + json.dumps([[round(x, 6) for x in r] for r in p["refined_matrix"]]))
