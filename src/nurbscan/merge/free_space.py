@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .frame import object_transform
+from .frame import view_object_from_rig
 
 __all__ = ["FreeSpace", "pass_free_space"]
 
@@ -178,14 +178,7 @@ def pass_free_space(model, rig, projector: bool = True) -> FreeSpace:
     ev = np.asarray(model.edge_view, int)
     for e in model.views:
         v = int(e["index"])
-        P = np.eye(4)
-        if "object_from_rig" in e:
-            P[:3, :3] = np.asarray(e["object_from_rig"]["R"], float)
-            P[:3, 3] = np.asarray(e["object_from_rig"]["t"], float)
-        else:
-            Mo, t = object_transform(rig.turntable, float(e["table_angle"]))
-            P[:3, :3], P[:3, 3] = Mo.T, -Mo.T @ t
-        M = np.linalg.inv(P)
+        M = np.linalg.inv(view_object_from_rig(e, rig.turntable))
         devices.append((rig.camera, M, v))
         if projector:
             devices.append((rig.projector, M, v))

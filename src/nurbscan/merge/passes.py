@@ -42,7 +42,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import NurbscanError
-from .frame import moved_curve, moved_points, moved_surface, object_transform
+from .frame import moved_curve, moved_points, moved_surface, view_object_from_rig
 from .free_space import FreeSpace, pass_free_space
 from .global_registration import (
     Alignment,
@@ -361,13 +361,7 @@ def view_poses(model, rigs: Sequence) -> dict:
         rig = rigs[int(e.get("pass", 0))]
         if rig is None:
             continue
-        P = np.eye(4)
-        if "object_from_rig" in e:
-            P[:3, :3] = np.asarray(e["object_from_rig"]["R"], float)
-            P[:3, 3] = np.asarray(e["object_from_rig"]["t"], float)
-        else:
-            M, t = object_transform(rig.turntable, float(e["table_angle"]))
-            P[:3, :3], P[:3, 3] = M.T, -M.T @ t
+        P = view_object_from_rig(e, rig.turntable)
         T = np.asarray(e.get("pass_transform", np.eye(4)), float)
         C = np.asarray(e.get("joint_registration", {}).get("matrix", np.eye(4)), float)
         out[int(e["index"])] = (rig, np.linalg.inv(C @ T @ P))
