@@ -144,3 +144,24 @@ def test_free_space_violations_against_the_truth(passes):
     v2, _ = FreeSpace.joined([moved]).violations(
         (A.P[::10] + 3.0 * A.N[::10]) @ _pose(True)[:3, :3].T + _pose(True)[:3, 3])
     assert np.array_equal(v2, v)
+
+
+def test_a_sphere_stays_ambiguous_with_free_space():
+    """A sphere (radius 25 mm) turned by (30, 60, 0) degrees: every alignment is consistent
+    with both passes' free space (no violation at all), so the ambiguity stays."""
+    from scipy.spatial.transform import Rotation
+
+    rig = default_rig()
+    mesh = trimesh.creation.icosphere(subdivisions=5, radius=25.0)
+    mesh.apply_translation([0, 0, 25.0])
+    TB = np.eye(4)
+    TB[:3, :3] = Rotation.from_euler("xyz", [30, 60, 0], degrees=True).as_matrix()
+    TB[:3, 3] = [0, 0, 25.0] - TB[:3, :3] @ [0, 0, 25.0]
+    A, B = _Pass(mesh, np.eye(4), rig, 1), _Pass(mesh, TB, rig, 2)
+    al = align_surfaces((B.P, B.N), (A.P, A.N),
+                        GlobalOptions(voxel=4.0, trials=4, ransac_iterations=20000,
+                                      icp_voxel=1.5),
+                        free_space=(pass_free_space(B, rig), pass_free_space(A, rig)))
+    assert al.ambiguous and al.chosen_by == "free space"
+    assert max(c["free_space"] for c in al.candidates) < 0.002
+    assert any("do not tell them apart" in w for w in al.warnings), al.warnings
