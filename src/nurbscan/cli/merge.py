@@ -94,9 +94,11 @@ def run(args: argparse.Namespace) -> int:
                           max_misclosure=args.max_misclosure),
                       fusion=None if args.no_fuse else FusionOptions(
                           max_triangles=args.max_triangles, loose_edges=0.5))
-    colour = None if args.no_fuse or args.no_colour else pass_colours(args, models, say)
+    rigs = pass_rigs(args, models, say)
+    colour = (None if args.no_fuse or args.no_colour
+              else pass_colours(args, models, say, rigs))
     merged, report = merge_passes(models, [str(m) for m in args.models], opt, progress=say,
-                                  colour=colour)
+                                  colour=colour, rigs=rigs)
     for m in models:
         m.meta.pop("_folder", None)
     merged.meta.pop("_folder", None)
@@ -109,6 +111,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"{p['name']} -> {report['passes'][0]['name']}: rotation {g['rotation_deg']:.4f} "
               f"degrees about {g['rotation_axis']}, translation {g['translation_mm']} mm; "
               f"overlap {100 * p['overlap']:.1f} %, RMS {p['rms_mm']:.4f} mm over the overlap"
+              + ("" if g.get("free_space") is None else
+                 f", free-space violation {100 * g['free_space']:.2f} % (chosen by "
+                 f"{g['chosen_by']}; candidates "
+                 + ", ".join(f"{100 * c['free_space']:.2f}" for c in g["candidates"]) + " %)")
               + (" (AMBIGUOUS)" if g["ambiguous"] else ""))
         print("  transform (after the joint refinement): "
               + json.dumps([[round(x, 6) for x in r] for r in p["refined_matrix"]]))
@@ -120,33 +126,55 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def pass_colours(args: argparse.Namespace, models: list, say) -> list:
-    """Per pass, ``(rig, {view: white image path})`` for the merged mesh's colours, or None
-    when its scan folder or calibration is not found (then said, not an error; given
-    explicitly with ``--scan``/``--calib`` and unreadable: an error)."""
-    from ..camera import load_rig
+def _check_counts(args: argparse.Namespace, n: int) -> None:
+    """``--scan`` once per model, ``--calib`` once per model or once for all."""
     from ..errors import NurbscanError
-    from ..io import load_scan
 
-    n = len(models)
     for opt, name in ((args.scan, "--scan"), (args.calib, "--calib")):
         if opt is not None and len(opt) not in ((1, n) if name == "--calib" else (n,)):
             raise NurbscanError(f"{name}: given {len(opt)} times for {n} models "
                                 + ("(once per model, or once for all)" if name == "--calib"
                                    else "(once per model)"))
+
+
+def pass_rigs(args: argparse.Namespace, models: list, say) -> list:
+    """Per pass, its calibrated rig (``--calib``, else the model's recorded calibration), or
+    None when not found (then said: the alignment is chosen without the pass's free space;
+    given explicitly and unreadable: an error)."""
+    from ..camera import load_rig
+
+    n = len(models)
+    _check_counts(args, n)
+    out = []
+    for k, (folder, m) in enumerate(zip(args.models, models, strict=True)):
+        calib = (args.calib[k if len(args.calib) == n else 0] if args.calib
+                 else _recorded(m.meta.get("calibration"), folder))
+        if calib is None:
+            say(f"rig: {folder}: its calibration is not found: its views' free space does "
+                "not check the alignment, nor do they colour the merged mesh (give --calib)")
+        out.append(None if calib is None else load_rig(calib))
+    return out
+
+
+def pass_colours(args: argparse.Namespace, models: list, say, rigs: list | None = None) -> list:
+    """Per pass, ``(rig, {view: white image path})`` for the merged mesh's colours, or None
+    when its scan folder or calibration is not found (then said, not an error; given
+    explicitly with ``--scan``/``--calib`` and unreadable: an error). ``rigs``: the passes'
+    rigs (:func:`pass_rigs`), loaded here when not given."""
+    from ..io import load_scan
+
+    _check_counts(args, len(models))
+    rigs = pass_rigs(args, models, say) if rigs is None else rigs
     out = []
     for k, (folder, m) in enumerate(zip(args.models, models, strict=True)):
         scan = args.scan[k] if args.scan else _recorded(m.meta.get("source"), folder)
-        calib = (args.calib[k if len(args.calib) == n else 0] if args.calib
-                 else _recorded(m.meta.get("calibration"), folder))
-        if scan is None or calib is None:
+        if scan is None or rigs[k] is None:
             say(f"colour: {folder}: its scan folder or calibration is not found; its views "
                 "do not colour the merged mesh (give --scan and --calib)")
             out.append(None)
             continue
-        rig = load_rig(calib)
         views = load_scan(scan).views
-        out.append((rig, {int(v.index): v.white for v in views if v.white is not None}))
+        out.append((rigs[k], {int(v.index): v.white for v in views if v.white is not None}))
     return out
 
 

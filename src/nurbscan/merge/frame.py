@@ -74,3 +74,17 @@ def moved_surface(surface: NurbsSurface, R: np.ndarray, t: np.ndarray) -> NurbsS
     """A surface moved rigidly (control points mapped, weights kept)."""
     return NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u, surface.knots_v,
                         moved_points(surface.control_points, R, t), surface.weights)
+
+
+def view_object_from_rig(entry: dict, turntable) -> np.ndarray:
+    """A model view's pose ``P`` (4 x 4), ``X_obj = P X_rig``: its registered
+    ``object_from_rig`` where its reconstruction recorded one, else the calibrated turntable
+    at its ``table_angle`` (:func:`object_transform`)."""
+    P = np.eye(4)
+    if "object_from_rig" in entry:
+        P[:3, :3] = np.asarray(entry["object_from_rig"]["R"], float)
+        P[:3, 3] = np.asarray(entry["object_from_rig"]["t"], float)
+    else:
+        M, t = object_transform(turntable, float(entry["table_angle"]))
+        P[:3, :3], P[:3, 3] = M.T, -M.T @ t
+    return P

@@ -12,7 +12,9 @@ the first pass's frame and builds one model of the whole object:
 2. **Global registration** of every further pass to the passes merged before it, with no
    prior (:func:`nurbscan.merge.global_registration.align_surfaces`: FPFH features, RANSAC,
    point-to-plane ICP), checked for too small an overlap, too large a residual (an error: not
-   one object) and ambiguity (a warning).
+   one object) and ambiguity (a warning); near-equal candidates are told apart by the
+   passes' free space when their rigs are known (:mod:`nurbscan.merge.free_space`: what
+   each pass's cameras and projector saw as empty).
 3. **One set of views.** Every pass's views, curves, Gordon patches and points moved by its
    transform; view ``v`` of pass ``k`` becomes view ``100 k + v``.
 4. **Joint refinement** of all views of all passes (:func:`nurbscan.merge.register.register_views`:
@@ -41,7 +43,8 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import NurbscanError
 from ._open3d import import_open3d
-from .frame import moved_curve, moved_points, moved_surface, object_transform
+from .frame import moved_curve, moved_points, moved_surface, view_object_from_rig
+from .free_space import FreeSpace, pass_free_space
 from .global_registration import (
     Alignment,
     GlobalOptions,
@@ -116,7 +119,7 @@ def pass_surface(model, options: PassOptions | None = None, seed: int = 0):
 def merge_passes(models: Sequence, names: Sequence[str] | None = None,
                  options: PassOptions | None = None,
                  progress: Callable[[str], None] | None = None,
-                 colour: Sequence | None = None):
+                 colour: Sequence | None = None, rigs: Sequence | None = None):
     """Merge turntable passes of one object into one model in the first pass's frame.
 
     Parameters
@@ -132,6 +135,11 @@ def merge_passes(models: Sequence, names: Sequence[str] | None = None,
         Per pass, its calibrated rig and its views' white-light images (the pass's own view
         indices), for the fused mesh's colours; None (or a pass's entry None): grey, or
         the passes that have them.
+    rigs : sequence of nurbscan.camera.Rig, optional
+        Per pass, its calibrated rig (default: those of ``colour``): the passes' views'
+        free space chooses among near-equal alignments
+        (:func:`nurbscan.merge.free_space.pass_free_space`); a pass without one (None):
+        the best overlap is chosen.
 
     Returns
     -------
@@ -167,9 +175,16 @@ def merge_passes(models: Sequence, names: Sequence[str] | None = None,
     alignments: list[Alignment | None] = [None]
     warnings: list[str] = []
     done_P, done_N = surfaces[0]
+    if rigs is None and colour is not None:
+        rigs = [None if c is None else c[0] for c in colour]
+    spaces = _free_spaces(models, rigs)
     for k in range(1, len(models)):
+        fs = None
+        if all(sp is not None for sp in spaces[:k + 1]):
+            fs = (spaces[k], FreeSpace.joined([spaces[j].moved(transforms[j], j)
+                                               for j in range(k)]))
         al = align_surfaces(surfaces[k], (done_P, done_N), opt.alignment, say,
-                            names=(names[k], " + ".join(names[:k])))
+                            names=(names[k], " + ".join(names[:k])), free_space=fs)
         transforms.append(al.matrix)
         alignments.append(al)
         warnings += al.warnings
@@ -177,6 +192,8 @@ def merge_passes(models: Sequence, names: Sequence[str] | None = None,
         say(f"merge: {names[k]} -> {names[0]}: rotation {np.degrees(np.linalg.norm(rv)):.3f} "
             f"degrees, translation {np.round(al.matrix[:3, 3], 3).tolist()} mm, overlap "
             f"{100 * al.overlap:.1f} %, RMS {al.rms_mm:.4f} mm over the overlap"
+            + ("" if al.free_space is None else
+               f", free-space violation {100 * al.free_space:.2f} % (chosen by {al.chosen_by})")
             + (" (ambiguous)" if al.ambiguous else ""))
         P, N = surfaces[k]
         done_P = np.concatenate([done_P, P @ al.matrix[:3, :3].T + al.matrix[:3, 3]])
@@ -229,6 +246,15 @@ def merge_passes(models: Sequence, names: Sequence[str] | None = None,
         say(f"merge: warning: {w}")
     report["total_s"] = round(time.perf_counter() - t0, 3)
     return merged, report
+
+
+def _free_spaces(models: Sequence, rigs: Sequence | None) -> list:
+    """Per pass, its free space (:func:`nurbscan.merge.free_space.pass_free_space`) in its
+    own frame, or None without its rig or fused mesh."""
+    if rigs is None:
+        return [None] * len(models)
+    return [None if r is None or getattr(m, "fused", None) is None
+            else pass_free_space(m, r) for m, r in zip(models, rigs, strict=True)]
 
 
 def mesh_overlap_rms(points: np.ndarray, T: np.ndarray, mesh, distance: float):
@@ -335,13 +361,7 @@ def view_poses(model, rigs: Sequence) -> dict:
         rig = rigs[int(e.get("pass", 0))]
         if rig is None:
             continue
-        P = np.eye(4)
-        if "object_from_rig" in e:
-            P[:3, :3] = np.asarray(e["object_from_rig"]["R"], float)
-            P[:3, 3] = np.asarray(e["object_from_rig"]["t"], float)
-        else:
-            M, t = object_transform(rig.turntable, float(e["table_angle"]))
-            P[:3, :3], P[:3, 3] = M.T, -M.T @ t
+        P = view_object_from_rig(e, rig.turntable)
         T = np.asarray(e.get("pass_transform", np.eye(4)), float)
         C = np.asarray(e.get("joint_registration", {}).get("matrix", np.eye(4)), float)
         out[int(e["index"])] = (rig, np.linalg.inv(C @ T @ P))
