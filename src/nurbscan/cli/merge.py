@@ -163,7 +163,6 @@ def pass_colours(args: argparse.Namespace, models: list, say, rigs: list | None 
     rigs (:func:`pass_rigs`), loaded here when not given."""
     from ..io import load_scan
 
-    _check_counts(args, len(models))
     rigs = pass_rigs(args, models, say) if rigs is None else rigs
     out = []
     for k, (folder, m) in enumerate(zip(args.models, models, strict=True)):

@@ -181,12 +181,10 @@ def gordon_cloud(model, spacing: float = 0.35, max_per_side: int = 1500):
 def mesh_distances(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Exact unsigned distances (N,) of points to a triangle mesh, mm (Open3D ray-casting
     scene, a BVH over the triangles)."""
-    from ..merge._open3d import import_open3d
+    from ..merge._open3d import import_open3d, raycasting_scene
 
     o3d = import_open3d("evaluation")
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)),
-                        o3d.core.Tensor(np.asarray(faces, np.uint32)))
+    scene = raycasting_scene(vertices, faces, "evaluation")
     return scene.compute_distance(o3d.core.Tensor(np.asarray(points, np.float32))).numpy()
 
 

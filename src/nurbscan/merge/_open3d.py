@@ -20,9 +20,11 @@ import importlib
 import sys
 import types
 
+import numpy as np
+
 from ..errors import NurbscanError
 
-__all__ = ["import_open3d"]
+__all__ = ["import_open3d", "raycasting_scene"]
 
 #: Open3D's plotting module, which imports Dash, Plotly and IPython, and the names
 #: ``open3d.visualization`` imports from it.
@@ -86,3 +88,15 @@ def import_open3d(what: str = "Open3D"):
         raise NurbscanError(f"{what}: Open3D cannot be imported ({exc})") from None
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
     return o3d
+
+
+def raycasting_scene(vertices, faces, what: str = "Open3D"):
+    """An Open3D ``RaycastingScene`` (a BVH over the triangles; exact ray hits and
+    point-to-triangle distances) of a triangle mesh: ``vertices`` (V, 3) mm, ``faces``
+    (F, 3) vertex indices; ``what`` names the step in the import error
+    (:func:`import_open3d`)."""
+    o3d = import_open3d(what)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)),
+                        o3d.core.Tensor(np.asarray(faces, np.uint32)))
+    return scene

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ._open3d import import_open3d
+from ._open3d import import_open3d, raycasting_scene
 from .frame import view_object_from_rig
 
 __all__ = ["FreeSpace", "pass_free_space"]
@@ -83,11 +83,7 @@ class FreeSpace:
 
     def _raycaster(self):
         if self._scene is None:
-            o3d = import_open3d("free space")
-            scene = o3d.t.geometry.RaycastingScene()
-            scene.add_triangles(o3d.core.Tensor(np.asarray(self.vertices, np.float32)),
-                                o3d.core.Tensor(np.asarray(self.faces, np.uint32)))
-            self._scene = scene
+            self._scene = raycasting_scene(self.vertices, self.faces, "free space")
         return self._scene
 
     def _tree(self, view):

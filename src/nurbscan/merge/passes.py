@@ -42,7 +42,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import NurbscanError
-from ._open3d import import_open3d
+from ._open3d import import_open3d, raycasting_scene
 from .frame import moved_curve, moved_points, moved_surface, view_object_from_rig
 from .free_space import FreeSpace, pass_free_space
 from .global_registration import (
@@ -263,9 +263,7 @@ def mesh_overlap_rms(points: np.ndarray, T: np.ndarray, mesh, distance: float):
     and the RMS distance over that overlap (mm)."""
     o3d = import_open3d("pass overlap")
     X = np.asarray(points, float) @ T[:3, :3].T + T[:3, 3]
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
-                        o3d.core.Tensor(np.asarray(mesh.faces, np.uint32)))
+    scene = raycasting_scene(mesh.vertices, mesh.faces, "pass overlap")
     d = scene.compute_distance(o3d.core.Tensor(X.astype(np.float32))).numpy().astype(float)
     ok = d <= distance
     if not ok.any():
