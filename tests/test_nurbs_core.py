@@ -23,6 +23,7 @@ from nurbscan.nurbs import (
     find_span,
     uniform_knots,
 )
+from nurbscan.nurbs.curve import evaluate_pieces
 
 geomdl = pytest.importorskip("geomdl")
 from geomdl import NURBS, operations  # noqa: E402
@@ -241,6 +242,26 @@ def test_evaluate_many_matches_single_curves():
     for i in range(5):
         np.testing.assert_allclose(out[i], NurbsCurve(p, U, P[i], W[i]).evaluate(u), atol=1e-12)
         np.testing.assert_allclose(out0[i], NurbsCurve(p, U, P[i]).evaluate(u), atol=1e-12)
+
+
+def test_evaluate_pieces_is_bit_for_bit_single_curve_evaluation():
+    """Curves of one degree, different knots, sizes and weights, each at its own params
+    (some beyond the domain, one empty set, one above the chunk size): identical bits."""
+    rng = np.random.default_rng(11)
+    curves, params = [], []
+    for k, n_ctrl in enumerate((4, 9, 23, 6, 15)):
+        U = random_knots(rng, n_ctrl, 3) * rng.uniform(10, 500) + rng.uniform(-100, 100)
+        W = rng.uniform(0.5, 2, n_ctrl) if k % 2 else None
+        curves.append(NurbsCurve(3, U, rng.normal(size=(n_ctrl, 3)) * 100, W))
+        m = (0, 50, 20000, 7, 300)[k]
+        params.append(rng.uniform(U[0] - 2, U[-1] + 2, m))
+    got = evaluate_pieces(curves, params)
+    assert [g.shape for g in got] == [(len(u), 3) for u in params]
+    for c, u, g in zip(curves, params, got, strict=True):
+        assert np.array_equal(g, c.evaluate(u))
+    with pytest.raises(NurbscanError):
+        evaluate_pieces([curves[0], NurbsCurve(2, uniform_knots(5, 2), np.ones((5, 3)))],
+                        [params[1], params[1]])
 
 
 # --------------------------------------------------------------------------- surfaces

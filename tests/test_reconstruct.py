@@ -13,6 +13,7 @@ import pytest
 
 from nurbscan.camera import Turntable
 from nurbscan.nurbs import NurbsCurve, NurbsSurface
+from nurbscan.nurbs.basis import averaging_knots
 from nurbscan.reconstruct import Model, load_model
 from nurbscan.reconstruct._batch import evaluate_chains, fit_chains, uniform_knots01
 from nurbscan.reconstruct.light import (
@@ -30,7 +31,7 @@ from nurbscan.reconstruct.network import (
     patch_extents,
     rectangles,
 )
-from nurbscan.reconstruct.triangulate import lstsq_spline
+from nurbscan.reconstruct.triangulate import lstsq_spline, lstsq_splines
 from nurbscan.simulate.rig import default_rig
 
 
@@ -185,6 +186,44 @@ def _netline(direction, c, w, knot=16.0):
     n = int(np.ceil((w[-1] - w[0]) / knot))
     curve = lstsq_spline(w, P, w[0] + (w[-1] - w[0]) * uniform_knots01(n))
     return NetLine(direction, float(c), 0, 0, w, P, np.array([w[0]]), np.array([w[-1]]), [curve])
+
+
+def test_lstsq_splines_is_bit_for_bit_one_fit_at_a_time():
+    """Stacked fits on shared params and knots (cubic, and the quadratic of a 3-curve patch)
+    give the control points of lstsq_spline one at a time, bit for bit, and fit the data."""
+    rng = np.random.default_rng(5)
+    for c_knots in (np.arange(100.0, 400, 16), np.array([100.0, 116.0, 132.0])):
+        p = min(3, len(c_knots) - 1)
+        K = averaging_knots(c_knots, p)
+        w = np.linspace(c_knots[0], c_knots[-1], 6 * len(c_knots))
+        pts = np.stack([_surface(w, np.full_like(w, v)) for v in (80.0, 96.0, 150.0, 290.0)])
+        pts = pts + rng.normal(scale=0.01, size=pts.shape)
+        Q = lstsq_splines(w, pts, K, degree=p, smooth=1e-9)
+        assert Q.shape == (4, len(K) - p - 1, 3)
+        for j in range(4):
+            one = lstsq_spline(w, pts[j], K, degree=p, smooth=1e-9)
+            assert np.array_equal(Q[j], one.control_points)
+            if p == 3:  # the cubic follows the smooth surface within the noise
+                assert np.abs(one.evaluate(w) - pts[j]).max() < 0.05
+
+
+def test_data_ranges_equal_one_line_at_a_time():
+    """The batched data ranges of a rectangle side (patch_extents) equal the single-line
+    ones and the lines' true data ends, with and without the residual filter."""
+    from nurbscan.reconstruct.network import _data_range, _data_ranges
+
+    lines = [_netline("vertical", c, np.linspace(70 + 5 * k, 310 - 3 * k, 400))
+             for k, c in enumerate(np.arange(100.0, 200, 16))]
+    for max_res in (np.inf, 1e-3):
+        got = _data_ranges(lines, 120.0, 250.0, 2.0, 10.0, max_res)
+        ref = np.array([_data_range(ln, 120.0, 250.0, 2.0, 10.0, max_res) for ln in lines])
+        assert np.array_equal(got, ref)
+        # every line's data runs on without a gap to its own ends (the truth)
+        assert np.allclose(got[:, 0], [70 + 5 * k for k in range(len(lines))], atol=1e-9)
+        assert np.allclose(got[:, 1], [310 - 3 * k for k in range(len(lines))], atol=1e-9)
+    # a line whose data stop 30 px short of b (a gap of 40 px > max_gap): its range ends there
+    short = _netline("vertical", 300.0, np.r_[np.linspace(70, 220, 200), np.linspace(260, 310, 50)])
+    assert np.allclose(_data_ranges([short], 120.0, 200.0, 2.0, 10.0)[0], (70.0, 220.0))
 
 
 def test_gordon_patch_reproduces_analytic_surface():

@@ -31,6 +31,7 @@ from .basis import (
 __all__ = [
     "NurbsCurve",
     "evaluate_many",
+    "evaluate_pieces",
     "insert_knot_h",
     "elevate_degree_h",
     "remove_knot_h",
@@ -522,3 +523,45 @@ def evaluate_many(degree: int, knots, control_points, u, weights=None) -> np.nda
     num = np.einsum("ki,cid->ckd", A, P * w[..., None])
     den = np.einsum("ki,ci->ck", A, w)
     return num / den[..., None]
+
+
+def evaluate_pieces(curves, params) -> list[np.ndarray]:
+    """Points of several curves of one degree, each at its own parameters, in one pass.
+
+    The same arithmetic as :meth:`NurbsCurve.evaluate` (A2.1 span search per curve, A2.2
+    basis functions and the A4.1 weighted sum over all parameters at once), so each curve's
+    points are bit for bit those of ``curve.evaluate(u)``: the knot vectors and homogeneous
+    control points of the curves are concatenated and every parameter indexes its own curve's
+    part. The curves may differ in knots, control point count and weights.
+
+    Parameters
+    ----------
+    curves : sequence of NurbsCurve
+        ``c >= 1`` curves of one degree and one dimension ``d``.
+    params : sequence of array_like
+        ``c`` parameter arrays, shapes ``(k_i,)`` (any shape is flattened).
+
+    Returns
+    -------
+    list of ndarray
+        ``c`` arrays of shapes ``(k_i, d)``, units of the control points.
+    """
+    curves = list(curves)
+    us = [_as_param(u).ravel() for u in params]
+    if len(us) != len(curves) or not curves:
+        raise NurbscanError(f"evaluate_pieces: {len(curves)} curves, {len(us)} parameter sets")
+    p = curves[0].degree
+    if any(c.degree != p or c.dimension != curves[0].dimension for c in curves):
+        raise NurbscanError("evaluate_pieces: the curves must share degree and dimension")
+    sizes = np.array([u.size for u in us])
+    koff = np.cumsum([0] + [len(c.knots) for c in curves[:-1]])
+    coff = np.cumsum([0] + [c.n_ctrl for c in curves[:-1]])
+    span = [find_span(c.n_ctrl - 1, p, u, c.knots) for c, u in zip(curves, us, strict=True)]
+    u = np.concatenate(us)
+    local = np.concatenate(span)
+    N = basis_functions(local + np.repeat(koff, sizes), u, p,
+                        np.concatenate([c.knots for c in curves]))
+    idx = (local + np.repeat(coff, sizes))[:, None] - p + np.arange(p + 1)
+    Pw = np.concatenate([c.homogeneous for c in curves])
+    Cw = np.einsum("...j,...jc->...c", N, Pw[idx])
+    return np.split(Cw[:, :-1] / Cw[:, -1:], np.cumsum(sizes)[:-1])

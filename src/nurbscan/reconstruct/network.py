@@ -45,8 +45,9 @@ from scipy.interpolate import make_interp_spline
 
 from ..nurbs import NurbsCurve, NurbsSurface
 from ..nurbs.basis import averaging_knots, basis_matrix
+from ..nurbs.curve import evaluate_pieces
 from ._batch import fit_chains, pair_quadratic_rms, uniform_knots01
-from .triangulate import Line3D, lstsq_spline
+from .triangulate import Line3D, lstsq_splines
 
 
 @dataclass
@@ -547,9 +548,40 @@ def _interval(ln: NetLine, a: float, b: float, reach: float) -> int:
     return int(_covers(ln, np.array([a]), np.array([b]), 0.0, reach)[0])
 
 
-def _curve_function(ln: NetLine, k: int):
+class _CurveFunction:
+    """The line's 3-D curve of interval ``k`` as a function of ``w`` (array -> (n, 3)),
+    :func:`_evaluate`; :func:`_sample` evaluates several of them at once."""
+
+    def __init__(self, ln: NetLine, k: int):
+        self.curve = ln.curves[k]
+
+    def __call__(self, w) -> np.ndarray:
+        return _evaluate(self.curve, np.atleast_1d(np.asarray(w, float)))
+
+
+def _curve_function(ln: NetLine, k: int) -> _CurveFunction:
     """The line's 3-D curve of interval ``k`` as a function of ``w`` (array -> (n, 3))."""
-    return lambda w: _evaluate(ln.curves[k], np.atleast_1d(np.asarray(w, float)))
+    return _CurveFunction(ln, k)
+
+
+def _sample(funs, w: np.ndarray) -> np.ndarray:
+    """Points (len(funs), n, 3) of the line functions ``funs`` at ``w`` (n,): ``f(w)`` for
+    each, bit for bit; the curves that ``w`` stays inside of (:func:`_evaluate` without the
+    tangent extension) in one :func:`~nurbscan.nurbs.curve.evaluate_pieces` call per degree,
+    the other functions one at a time."""
+    w = np.atleast_1d(np.asarray(w, float))
+    out = np.empty((len(funs), len(w), 3))
+    groups: dict = {}
+    for i, f in enumerate(funs):
+        if isinstance(f, _CurveFunction):
+            lo, hi = f.curve.domain
+            if np.array_equal(np.clip(w, lo, hi), w):
+                groups.setdefault(f.curve.degree, []).append(i)
+                continue
+        out[i] = f(w)
+    for idx in groups.values():
+        out[idx] = np.stack(evaluate_pieces([funs[i].curve for i in idx], [w] * len(idx)))
+    return out
 
 
 def _span_values(ln: NetLine, w: np.ndarray, nodes: np.ndarray, reach: float,
@@ -609,28 +641,64 @@ def _fill_gaps(V, H, cu, cv, reach: float, margin: float = 1.0):
     return vfun, hfun
 
 
-def _data_range(ln: NetLine, a: float, b: float, reach: float, max_gap: float = np.inf,
-                max_res: float = np.inf) -> tuple[float, float]:
-    """Range (first, last ``w``) of the samples of ``ln`` that continue [a, b] without a gap.
+def _data_ranges(lines, a: float, b: float, reach: float, max_gap: float = np.inf,
+                 max_res: float = np.inf) -> np.ndarray:
+    """Range (first, last ``w``) of the samples of each line that continue [a, b] without a
+    gap, (len(lines), 2) px.
 
     Of the interval covering [a, b], the samples within ``max_res`` mm of its curve, followed
     outwards from ``a`` and ``b`` until the next one is more than ``max_gap`` px away: an
     interval may bridge a longer gap (an occlusion), and a sample its curve does not follow is
-    not data that continues the rectangle's side.
+    not data that continues the rectangle's side. A line without such an interval gives
+    ``(a, b)``. The curves' residuals are evaluated together (:func:`_evaluate` of each, bit
+    for bit: :func:`~nurbscan.nurbs.curve.evaluate_pieces` for the samples inside the
+    curves' domains).
     """
-    k = _interval(ln, a, b, reach)
-    if k < 0:
-        return a, b
-    sel = (ln.w >= ln.starts[k]) & (ln.w <= ln.ends[k])
-    w = ln.w[sel]
+    ks = [_interval(ln, a, b, reach) for ln in lines]
+    sel = [(ln.w >= ln.starts[k]) & (ln.w <= ln.ends[k]) if k >= 0 else None
+           for ln, k in zip(lines, ks, strict=True)]
+    ws = [ln.w[m] if k >= 0 else None for ln, k, m in zip(lines, ks, sel, strict=True)]
     if np.isfinite(max_res):
-        w = w[np.linalg.norm(_evaluate(ln.curves[k], w) - ln.points[sel], axis=1) <= max_res]
-    out = []
-    for ahead in (np.sort(a - w[w < a]), np.sort(w[w > b] - b)):
-        far = np.diff(np.r_[0.0, ahead]) > max_gap
-        n = int(np.argmax(far)) if far.any() else len(ahead)
-        out.append(float(ahead[n - 1]) if n else 0.0)
-    return a - out[0], b + out[1]
+        pts: list = [None] * len(lines)
+        inside = []
+        for i, (ln, k, w) in enumerate(zip(lines, ks, ws, strict=True)):
+            if k < 0:
+                continue
+            lo, hi = ln.curves[k].domain
+            if np.array_equal(np.clip(w, lo, hi), w):
+                inside.append(i)
+            else:
+                pts[i] = _evaluate(ln.curves[k], w)
+        by_degree: dict = {}
+        for i in inside:
+            by_degree.setdefault(lines[i].curves[ks[i]].degree, []).append(i)
+        for idx in by_degree.values():
+            got = evaluate_pieces([lines[i].curves[ks[i]] for i in idx], [ws[i] for i in idx])
+            for i, P in zip(idx, got, strict=True):
+                pts[i] = P
+        for i, (ln, k) in enumerate(zip(lines, ks, strict=True)):
+            if k >= 0:
+                ws[i] = ws[i][np.linalg.norm(pts[i] - ln.points[sel[i]], axis=1) <= max_res]
+    out = np.empty((len(lines), 2))
+    for i, w in enumerate(ws):
+        if w is None:
+            out[i] = a, b
+            continue
+        ext = []
+        for ahead in (np.sort(a - w[w < a]), np.sort(w[w > b] - b)):
+            far = np.diff(np.r_[0.0, ahead]) > max_gap
+            n = int(np.argmax(far)) if far.any() else len(ahead)
+            ext.append(float(ahead[n - 1]) if n else 0.0)
+        out[i] = a - ext[0], b + ext[1]
+    return out
+
+
+def _data_range(ln: NetLine, a: float, b: float, reach: float, max_gap: float = np.inf,
+                max_res: float = np.inf) -> tuple[float, float]:
+    """Range (first, last ``w``) of the samples of ``ln`` that continue [a, b] without a gap
+    (:func:`_data_ranges` of one line)."""
+    r = _data_ranges([ln], a, b, reach, max_gap, max_res)[0]
+    return float(r[0]), float(r[1])
 
 
 def patch_extents(vlines, hlines, rect, mask=None, reach: float = 0.0, margin: float = 1.0,
@@ -642,7 +710,7 @@ def patch_extents(vlines, hlines, rect, mask=None, reach: float = 0.0, margin: f
     contour, a shadow or a grazing view the line of the other direction beyond it is lost, but
     the rectangle's side curves often go on. Beyond the last horizontal curve ``c_j1`` the
     patch may reach as far as every vertical curve of the rectangle still has data
-    (:func:`_data_range`: samples no more than ``max_gap`` px apart and within ``max_res`` mm
+    (:func:`_data_ranges`: samples no more than ``max_gap`` px apart and within ``max_res`` mm
     of the curve), less ``margin`` px, and at most to the next horizontal line less ``margin``
     and one pitch (the rectangle's last two cells); likewise on the other three sides. A side
     whose next cells are all complete (``mask``: another rectangle's) is not extended, nor one
@@ -671,7 +739,7 @@ def _side_extents(sides, coords, a0: int, a1: int, next_cells, reach, margin, ma
     ``coords[k]`` and ``coords[k + 1]`` along the rectangle (see :func:`patch_extents`)."""
     c = np.asarray(coords, float)
     lo, hi = c[a0], c[a1]
-    rng = np.array([_data_range(ln, lo, hi, reach, max_gap, max_res) for ln in sides])
+    rng = _data_ranges(sides, lo, hi, reach, max_gap, max_res)
     pitch = (c[min(a0 + 2, a1)] - lo, hi - c[max(a1 - 2, a0)]) if a1 - a0 >= 2 else (
         2 * (c[a0 + 1] - lo), 2 * (hi - c[a1 - 1]))
     out = []
@@ -736,8 +804,8 @@ def gordon_patch(vlines, hlines, rect, per_span: int = 6, reach: float = 0.0,
     if iu or jv:
         # the real curves on the whole (extended) grid, once: VG[i, j] = V_i(cv[j]) at the real
         # vertical curve i (index into cu_r), HG[j, i] = H_j(cu[i]) likewise
-        VG = np.stack([f(cv) for f in vfun])
-        HG = np.stack([f(cu) for f in hfun])
+        VG = _sample(vfun, cv)
+        HG = _sample(hfun, cu)
 
         def near(k, n, off):  # index of the real curve next to virtual index k
             return off if k == 0 else off + n - 1
@@ -771,12 +839,9 @@ def gordon_patch(vlines, hlines, rect, per_span: int = 6, reach: float = 0.0,
     Bu = basis_matrix(cu, p, Ku, nI)
     Bv = basis_matrix(cv, q, Kv, nJ)
     wu, wv = np.linspace(cu[0], cu[-1], per_span * nI), np.linspace(cv[0], cv[-1], per_span * nJ)
-    Qh = np.empty((nJ, nI, 3))  # control points of horizontal curves (in u)
-    for j, f in enumerate(hfun):
-        Qh[j] = lstsq_spline(wu, np.atleast_2d(f(wu)), Ku, degree=p, smooth=1e-9).control_points
-    Qv = np.empty((nI, nJ, 3))
-    for i, f in enumerate(vfun):
-        Qv[i] = lstsq_spline(wv, np.atleast_2d(f(wv)), Kv, degree=q, smooth=1e-9).control_points
+    # control points of the horizontal curves (in u), (nJ, nI, 3), and of the vertical ones
+    Qh = lstsq_splines(wu, _sample(hfun, wu), Ku, degree=p, smooth=1e-9)
+    Qv = lstsq_splines(wv, _sample(vfun, wv), Kv, degree=q, smooth=1e-9)
     # grid points: mean of the two segment fits at the crossing
     Xh = np.einsum("ui,jic->ujc", Bu, Qh)  # horizontal j at u = c_i -> (nI, nJ, 3)
     Xv = np.einsum("vj,ijc->ivc", Bv, Qv)  # vertical i at v = c_j -> (nI, nJ, 3)

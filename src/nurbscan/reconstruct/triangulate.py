@@ -36,6 +36,18 @@ from .light import intersect_exact
 DIRECTIONS = ("vertical", "horizontal")
 
 
+def _normal_matrix(params, knots, degree: int, smooth: float):
+    """Basis matrix ``A`` (m, n_ctrl) and penalised normal matrix ``A^T A + s D^T D`` of the
+    least-squares fits (:func:`lstsq_spline`)."""
+    n_ctrl = len(knots) - degree - 1
+    A = basis_matrix(params, degree, knots, n_ctrl)
+    M = A.T @ A
+    if n_ctrl > 2:
+        D = np.diff(np.eye(n_ctrl), 2, axis=0)
+        M = M + smooth * max(len(params), 1) / n_ctrl * (D.T @ D)
+    return A, M
+
+
 def lstsq_spline(params: np.ndarray, points: np.ndarray, knots: np.ndarray, degree: int = 3,
                  smooth: float = 1e-6) -> NurbsCurve:
     """Least-squares B-spline with a given knot vector (Piegl and Tiller eq. 9.63-9.67).
@@ -55,14 +67,37 @@ def lstsq_spline(params: np.ndarray, points: np.ndarray, knots: np.ndarray, degr
     NurbsCurve
         Non-rational, ``len(knots) - degree - 1`` control points.
     """
-    n_ctrl = len(knots) - degree - 1
-    A = basis_matrix(params, degree, knots, n_ctrl)
-    M = A.T @ A
-    if n_ctrl > 2:
-        D = np.diff(np.eye(n_ctrl), 2, axis=0)
-        M = M + smooth * max(len(params), 1) / n_ctrl * (D.T @ D)
+    A, M = _normal_matrix(params, knots, degree, smooth)
     P = np.linalg.solve(M, A.T @ points)
     return NurbsCurve(degree, knots, P)
+
+
+def lstsq_splines(params: np.ndarray, points: np.ndarray, knots: np.ndarray, degree: int = 3,
+                  smooth: float = 1e-6) -> np.ndarray:
+    """Control points of several least-squares B-splines on shared parameters and knots.
+
+    :func:`lstsq_spline` for ``c`` data sets sampled at the same ``params`` (Piegl and Tiller
+    eq. 9.63-9.67 with the same penalty): the basis matrix and the normal matrix are built
+    once and the ``c`` normal equations are solved as one stacked solve (one matrix, the
+    right-hand sides batched). Each fit is bit for bit that of :func:`lstsq_spline`.
+
+    Parameters
+    ----------
+    params : ndarray (m,)
+        Data parameters inside the knot domain.
+    points : ndarray (c, m, d)
+        The ``c`` data sets.
+    knots : ndarray (n + p + 2,)
+
+    Returns
+    -------
+    ndarray (c, n_ctrl, d)
+        Control points, ``n_ctrl = len(knots) - degree - 1``, units of ``points``.
+    """
+    points = np.asarray(points, dtype=float)
+    A, M = _normal_matrix(params, knots, degree, smooth)
+    c = points.shape[0]
+    return np.linalg.solve(np.broadcast_to(M, (c,) + M.shape), A.T @ points)
 
 
 @dataclass(frozen=True)
