@@ -13,21 +13,21 @@ wide) whose colours form a windowed code along each direction (a De Bruijn seque
    columns). ``pattern.window`` consecutive centres whose gaps are alike (no line missing
    between them: each gap within ``gap_ratio`` of the first) form a window; its colour codes
    looked up in the family (``LineFamily.lookup``) give the index of its first line, so a vote
-   for the index of each of its chains (:func:`.line_labels._windows`). The assignment of colour classes
-   to codes and the reading order (projector coordinate growing or falling with the camera
-   coordinate) are those under which most windows occur in the code.
+   for the index of each of its chains (:func:`.line_labels._windows`). The assignment of
+   colour classes to codes and the reading order (projector coordinate growing or falling with
+   the camera coordinate) are those under which most windows occur in the code.
 4. Each chain takes the index most of its votes agree on (``min_votes``, ``min_agreement``).
-5. Consistency (:func:`.line_labels._consistent`): along the rows, labelled neighbours must hold
-   consecutive indices in the reading order when their gap is one line pitch (two when it is
-   two, ...; the pitch measured from the labelled neighbours themselves). Chains whose
+5. Consistency (:func:`.line_labels._consistent`): along the rows, labelled neighbours must
+   hold consecutive indices in the reading order when their gap is one line pitch (two when it
+   is two, ...; the pitch measured from the labelled neighbours themselves). Chains whose
    neighbour relations mostly fail are refused (label -1), the worst first, until all agree.
-6. Propagation (:func:`.line_labels._propagate`): an unlabelled chain next to labelled chains in its rows,
-   at the pitch of their labelled neighbours, takes the next index when its colour is that
-   line's colour and enough rows agree; collinear pieces of a line share its label
-   (:func:`.line_labels._collinear_labels`); chains between two decoded lines are labelled by counting
-   (:func:`.line_labels._fill_between`); the result is checked again (step 5 and the order of the lines
-   along the runs, :func:`.line_labels._ordered`), and finally against the smooth index field of each
-   chain's neighbourhood (:func:`.line_labels._field_check`).
+6. Propagation (:func:`.line_labels._propagate`): an unlabelled chain next to labelled chains
+   in its rows, at the pitch of their labelled neighbours, takes the next index when its colour
+   is that line's colour and enough rows agree; collinear pieces of a line share its label
+   (:func:`.line_labels._collinear_labels`); chains between two decoded lines are labelled by
+   counting (:func:`.line_labels._fill_between`); the result is checked again (step 5 and the
+   order of the lines along the runs, :func:`.line_labels._ordered`), and finally against the
+   smooth index field of each chain's neighbourhood (:func:`.line_labels._field_check`).
 7. The decoded chains become centre-lines of a :class:`~nurbscan.detect.result.DetectionResult`
    (``edge = 2``, ``coord`` the line's centre coordinate in the projector), and their
    crossings (a vertical and a horizontal line fitted locally, intersected) its grid
