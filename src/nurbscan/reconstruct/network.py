@@ -240,6 +240,25 @@ def _evaluate(curve: NurbsCurve, w: np.ndarray, tangent: bool = False):
     return (P, D) if tangent else P
 
 
+def _evaluate_all(curves, params) -> list[np.ndarray]:
+    """:func:`_evaluate` of each curve at its parameters, bit for bit: the curves whose
+    parameters stay inside their domain in one :func:`~nurbscan.nurbs.curve.evaluate_pieces`
+    call per degree, the others (tangent extension) one at a time."""
+    out: list = [None] * len(curves)
+    groups: dict = {}
+    for i, (c, w) in enumerate(zip(curves, params, strict=True)):
+        lo, hi = c.domain
+        if np.array_equal(np.clip(w, lo, hi), w):
+            groups.setdefault(c.degree, []).append(i)
+        else:
+            out[i] = _evaluate(c, w)
+    for idx in groups.values():
+        for i, P in zip(idx, evaluate_pieces([curves[i] for i in idx],
+                                             [params[i] for i in idx]), strict=True):
+            out[i] = P
+    return out
+
+
 def _by_interval(ln: NetLine, w: np.ndarray, k: np.ndarray, tangent: bool = False):
     """Points (n, 3) of the line at ``w`` (n,) on the curves of the intervals ``k`` (n,),
     NaN where ``k`` is -1 (:func:`_evaluate`, one call per interval); with ``tangent`` also
@@ -571,16 +590,11 @@ def _sample(funs, w: np.ndarray) -> np.ndarray:
     the other functions one at a time."""
     w = np.atleast_1d(np.asarray(w, float))
     out = np.empty((len(funs), len(w), 3))
-    groups: dict = {}
-    for i, f in enumerate(funs):
-        if isinstance(f, _CurveFunction):
-            lo, hi = f.curve.domain
-            if np.array_equal(np.clip(w, lo, hi), w):
-                groups.setdefault(f.curve.degree, []).append(i)
-                continue
-        out[i] = f(w)
-    for idx in groups.values():
-        out[idx] = np.stack(evaluate_pieces([funs[i].curve for i in idx], [w] * len(idx)))
+    cur = [i for i, f in enumerate(funs) if isinstance(f, _CurveFunction)]
+    for i in set(range(len(funs))) - set(cur):
+        out[i] = funs[i](w)
+    if cur:
+        out[cur] = np.stack(_evaluate_all([funs[i].curve for i in cur], [w] * len(cur)))
     return out
 
 
@@ -659,26 +673,10 @@ def _data_ranges(lines, a: float, b: float, reach: float, max_gap: float = np.in
            for ln, k in zip(lines, ks, strict=True)]
     ws = [ln.w[m] if k >= 0 else None for ln, k, m in zip(lines, ks, sel, strict=True)]
     if np.isfinite(max_res):
-        pts: list = [None] * len(lines)
-        inside = []
-        for i, (ln, k, w) in enumerate(zip(lines, ks, ws, strict=True)):
-            if k < 0:
-                continue
-            lo, hi = ln.curves[k].domain
-            if np.array_equal(np.clip(w, lo, hi), w):
-                inside.append(i)
-            else:
-                pts[i] = _evaluate(ln.curves[k], w)
-        by_degree: dict = {}
-        for i in inside:
-            by_degree.setdefault(lines[i].curves[ks[i]].degree, []).append(i)
-        for idx in by_degree.values():
-            got = evaluate_pieces([lines[i].curves[ks[i]] for i in idx], [ws[i] for i in idx])
-            for i, P in zip(idx, got, strict=True):
-                pts[i] = P
-        for i, (ln, k) in enumerate(zip(lines, ks, strict=True)):
-            if k >= 0:
-                ws[i] = ws[i][np.linalg.norm(pts[i] - ln.points[sel[i]], axis=1) <= max_res]
+        has = [i for i, k in enumerate(ks) if k >= 0]
+        pts = _evaluate_all([lines[i].curves[ks[i]] for i in has], [ws[i] for i in has])
+        for i, P in zip(has, pts, strict=True):
+            ws[i] = ws[i][np.linalg.norm(P - lines[i].points[sel[i]], axis=1) <= max_res]
     out = np.empty((len(lines), 2))
     for i, w in enumerate(ws):
         if w is None:
