@@ -15,6 +15,12 @@ after the best rigid motion (the shape error: a principal point off by 0.2 px tu
 whole camera frame by 0.2 px / f, 40 microradians or 0.02 mm at 600 mm at full size, and the
 issue allows 1 px), and the same with the TRUE rig (the detection's own floor).
 
+The command itself (issue 30's memory target): ``nurbscan calibrate`` run as a user runs it
+(its default 2 worker processes) on the same images, its resident memory sampled every 20 ms
+with psutil: the peak of the sum over the command and its workers (resident set, and
+proportional set size, which counts the pages the forked workers share once), and of its
+largest process.
+
 Usage: ``python benchmarks/bench_calibrate.py [SCAN_DIR]`` (an existing scan folder is reused;
 a new one is rendered into SCAN_DIR and kept).
 """
@@ -22,6 +28,7 @@ a new one is rendered into SCAN_DIR and kept).
 from __future__ import annotations
 
 import json
+import subprocess
 import sys
 import tempfile
 import time
@@ -119,6 +126,44 @@ def evaluate(scan: Path, held_out: int = HELD_OUT, max_points: int = 4000) -> di
     }
 
 
+def command_memory(scan: Path, interval: float = 0.02) -> dict:
+    """Run ``nurbscan calibrate SCAN/calibration`` (its defaults) in a child process and sample
+    the resident memory of its process tree every ``interval`` s (psutil): the peak of the
+    tree's sum (RSS, and PSS: shared pages counted once) and of its largest process (MB), the
+    wall time (s) and the exit status."""
+    import psutil
+
+    with tempfile.TemporaryDirectory(prefix="bench_calibrate_cli_") as tmp:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-m", "nurbscan", "calibrate",
+                                 str(scan / "calibration"), "-o", str(Path(tmp) / "calib.json"),
+                                 "-q"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        root = psutil.Process(proc.pid)
+        total = largest = shared = 0.0
+        while proc.poll() is None:
+            try:
+                tree = [root, *root.children(recursive=True)]
+                rss, pss = [], []
+                for p in tree:
+                    try:
+                        rss.append(p.memory_info().rss / 2**20)
+                        pss.append(p.memory_full_info().pss / 2**20)
+                    except psutil.NoSuchProcess:
+                        pass
+                total, largest = max(total, sum(rss)), max(largest, max(rss, default=0.0))
+                shared = max(shared, sum(pss))
+            except psutil.NoSuchProcess:
+                pass
+            time.sleep(interval)
+        err = proc.stderr.read().decode(errors="replace").strip()
+        return {"peak memory, the command and its workers (MB)": round(total, 1),
+                "peak memory, the same, shared pages counted once (PSS, MB)": round(shared, 1),
+                "peak memory, its largest process (MB)": round(largest, 1),
+                "wall time (s)": round(time.perf_counter() - t0, 2),
+                "exit status": proc.returncode,
+                **({"error": err.splitlines()[-1][:200]} if proc.returncode else {})}
+
+
 def bench(scan: str | None = None) -> dict:
     """Render (unless ``scan`` is given), calibrate and measure; a dict of figures."""
     if scan is not None:
@@ -129,14 +174,17 @@ def bench(scan: str | None = None) -> dict:
             t_sim = time.perf_counter() - t0
             out = evaluate(scan)
             out["simulation time (s)"] = t_sim
-            return out
-        return evaluate(scan)
+        else:
+            out = evaluate(scan)
+        out["nurbscan calibrate"] = command_memory(scan)
+        return out
     with tempfile.TemporaryDirectory(prefix="bench_calibrate_") as tmp:
         t0 = time.perf_counter()
         make_scan(Path(tmp) / "scan")
         t_sim = time.perf_counter() - t0
         out = evaluate(Path(tmp) / "scan")
         out["simulation time (s)"] = t_sim
+        out["nurbscan calibrate"] = command_memory(Path(tmp) / "scan")
         return out
 
 

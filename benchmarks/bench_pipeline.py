@@ -47,7 +47,8 @@ REPEAT = int(os.environ.get("NURBSCAN_BENCH_REPEAT", "3"))
 SIZES_MP = (1.0, 2.0, 4.0, 7.08, 12.0)
 VIEW_COUNTS = (1, 2, 4, 8)
 DEMO_VIEWS = int(os.environ.get("NURBSCAN_BENCH_DEMO_VIEWS", "8"))
-TARGETS = {"detect_s": 1.0, "image_to_gordon_s": 3.0}
+#: Issue 30's targets for one 7.1 MP view (the earlier 1 s and 3 s were issue 3's).
+TARGETS = {"detect_s": 0.6, "image_to_gordon_s": 1.5}
 
 
 def measure(fn, repeat: int = REPEAT, budget_s: float = 60.0):
