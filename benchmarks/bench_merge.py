@@ -15,9 +15,12 @@ Usage: ``python benchmarks/bench_merge.py [SCAN_DIR]``, or ``python benchmarks/b
 --keep-table``, or one written before the merge stage): its views are then turned as the
 perturbed angles would have put them (``X_obj' = Rz(-delta) X_obj``, exactly what the angle
 does to a view reconstructed in the rig frame) instead of reconstructing twice. Without it a
-1024 x 768, 8-view teapot scan is rendered (``NURBSCAN_BENCH_QUICK=1``: 640 x 480 with a
-coarse grid, where the surface does not fix the turns and the registration is refused with a
-warning).
+the demo's teapot scan is rendered: 8 views at the default camera's 3072 x 2304
+(``NURBSCAN_BENCH_MERGE_SIZE=WxH`` for another size, e.g. 1024x768, where the views' own
+errors allow only about 0.05 degrees; ``NURBSCAN_BENCH_QUICK=1``: 640 x 480 with a coarse
+grid, where the surface does not fix the turns and the registration is refused with a
+warning). ``NURBSCAN_BENCH_MERGE_SCAN=SCAN_DIR`` measures an existing scan instead (e.g. the
+full-resolution demo's, with the ``calib.json`` it calibrated from images beside it).
 """
 
 from __future__ import annotations
@@ -49,7 +52,10 @@ def make_scan(out: Path) -> Path:
         rig = scale_camera(default_rig(), 640, 480)
         kw = {"pattern": Pattern.create(1920, 1080, pitch=32, band=12)}
     else:
-        rig = scale_camera(default_rig(), 1024, 768)
+        size = os.environ.get("NURBSCAN_BENCH_MERGE_SIZE")
+        rig = default_rig()
+        if size:
+            rig = scale_camera(rig, *(int(x) for x in size.lower().split("x")))
     simulate_scan(make_scene("teapot"), out, views=8, rig=rig, calibration=False,
                   settings=RenderSettings(), workers=2, **kw)
     return out
@@ -89,7 +95,9 @@ def evaluate(scan: Path) -> dict:
     calib = scan.parent / "calib.json"
     rig = load_rig(calib if calib.exists() else scan / "truth" / "rig.json")
     truth = scan / "truth"
-    out: dict = {"rig": "calibrated (calib.json)" if calib.exists() else "true (truth/rig.json)",
+    out: dict = {"scan": str(scan) if os.environ.get("NURBSCAN_BENCH_MERGE_SCAN") else
+                 "rendered (the demo's teapot, 8 views)",
+                 "rig": "calibrated (calib.json)" if calib.exists() else "true (truth/rig.json)",
                  "camera size (px)": f"{rig.camera.width} x {rig.camera.height}"}
     exact = reconstruct_scan(scan, rig, merge=None, workers=2)
     out["exact angles, unregistered: Gordon"] = _gordon(evaluate_model(exact, truth))
