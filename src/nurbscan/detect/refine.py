@@ -291,7 +291,6 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     # across-edge derivative samples at offsets -1, 0, +1, and the along-edge derivative
     acc = np.zeros((n, 3))
     used = np.zeros(n, np.int64)
-    steps = np.array([-1.0, 0.0, 1.0])
     sl = np.zeros(n) if slope is None else np.asarray(slope, np.float64)
     ix, iy = np.asarray(ix, np.int64), np.asarray(iy, np.int64)
     mag = []
@@ -310,17 +309,23 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     else:
         channels = _Cropped(channels, rows, cols)
     jx, jy = ix - cols.start, iy - rows.start
-    # (N, 3): the samples along each point's fit line, from taps shared by the images
-    taps = line_taps(jx, jy, np.where(vert, 0, 1), sl, steps,
+    # (N, 2): the samples one step before and after each point along its fit line, from taps
+    # shared by the images (the centre sample is the pixel's own value: its taps' weights are
+    # 0, 1, 0, 0)
+    taps = line_taps(jx, jy, np.where(vert, 0, 1), sl, (-1.0, 1.0),
                      (rows.stop - rows.start, cols.stop - cols.start))
+    ux0, uy0 = ux[:, 0], uy[:, 0]
 
     def channel(c):  # one channel's profiles (the channels side by side: _threads)
         img = channels[c]  # (a lazy sequence computes each plane here)
         gx, gy = gradient(img, sigma, sigma_along)
         del img
-        prof = sample_taps(gx, *taps) * ux + sample_taps(gy, *taps) * uy
+        side = sample_taps(gx, *taps) * ux + sample_taps(gy, *taps) * uy
         cx, cy = gx[jy, jx], gy[jy, jx]
         del gx, gy
+        prof = np.empty((n, 3))
+        prof[:, 0], prof[:, 2] = side[:, 0], side[:, 1]
+        prof[:, 1] = cx.astype(np.float64) * ux0 + cy.astype(np.float64) * uy0
         along = nx * cy - ny * cx
         normal_d = nx * cx + ny * cy
         ok = colour[:, c] & (np.abs(along) <= clean * np.abs(normal_d)) & (prof[:, 1] > 0)
