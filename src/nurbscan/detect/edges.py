@@ -164,6 +164,12 @@ class EdgePoints:
         return EdgePoints(**{k: (None if v is None else v[index])
                              for k, v in self.__dict__.items()})
 
+def _at(img: np.ndarray, flat: np.ndarray) -> np.ndarray:
+    """``img`` (H, W) at the flat pixel indices ``flat`` (the values of ``img[iy, ix]``, in
+    one gather)."""
+    return np.take(img.ravel(), flat)
+
+
 def _subpixel(lm: np.ndarray, l0: np.ndarray, lp: np.ndarray,
               limit: float | np.ndarray = 0.5) -> np.ndarray:
     """Vertex of the parabola through ``(-1, lm), (0, l0), (1, lp)`` (N,), clipped to
@@ -287,8 +293,8 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         ratio2[sy, sx] = comp[0] / np.maximum(comp[1], 1e-20)
         del sy, sx, comp, mag2, diff2, prod2
 
-        def vratio(iy, ix):
-            return np.sqrt(np.maximum(ratio2[iy, ix], 0.0))
+        def vratio(fl):
+            return np.sqrt(np.maximum(_at(ratio2, fl), 0.0))
 
         if oblique and not (np.all(tv == 0.0) and np.all(th == np.pi / 2)):
             # each family's edges by its own gradient component, the derivative along the
@@ -300,13 +306,13 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         vmask = strong & (np.abs(gx) >= dominance * np.abs(gy))
         hmask = strong & (np.abs(gy) > dominance * np.abs(gx))
 
-        def vratio(iy, ix):
-            return np.abs(gx[iy, ix]) / np.maximum(np.abs(gy[iy, ix]), 1e-10)
+        def vratio(fl):
+            return np.abs(_at(gx, fl)) / np.maximum(np.abs(_at(gy, fl)), 1e-10)
 
-    def operator(a, axis, iy, ix):
+    def operator(a, axis, fl):
         if a is None:
-            return np.repeat(np.eye(2, dtype=np.float32)[axis][None, :], len(iy), axis=0)
-        return np.stack([a[0][iy, ix], a[1][iy, ix]], axis=1)
+            return np.repeat(np.eye(2, dtype=np.float32)[axis][None, :], len(fl), axis=0)
+        return np.stack([_at(a[0], fl), _at(a[1], fl)], axis=1)
 
     def ln(a):  # the log-parabola samples, at the peaks only
         return np.log(np.maximum(a, 1e-6))
@@ -334,12 +340,13 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         iy, ix = np.nonzero(c)
         del c
         step = (0, 1) if axis == 0 else (1, 0)  # (dy, dx) of one step along the search axis
-        lm, l0, lp = (ln(amp[iy + k * step[0], ix + k * step[1]]) for k in (-1, 0, 1))
+        fl = iy * w + ix  # (the flat pixels: one index for the many gathers)
+        lm, l0, lp = (ln(_at(amp, fl + k * (step[0] * w + step[1]))) for k in (-1, 0, 1))
         sl, limit = np.zeros(len(iy)), 0.5
         if balanced:
             # the operators A are parallel to the other family's edges: normals from them
-            n_own = np.stack([-a_other[1][iy, ix], a_other[0][iy, ix]], 1).astype(np.float64)
-            n_oth = np.stack([-a_own[1][iy, ix], a_own[0][iy, ix]], 1).astype(np.float64)
+            n_own = np.stack([-_at(a_other[1], fl), _at(a_other[0], fl)], 1).astype(np.float64)
+            n_oth = np.stack([-_at(a_own[1], fl), _at(a_own[0], fl)], 1).astype(np.float64)
             n_own /= np.linalg.norm(n_own, axis=1, keepdims=True)
             n_oth /= np.linalg.norm(n_oth, axis=1, keepdims=True)
             sl = fit_slopes(n_own, n_oth, axis, lm - 2.0 * l0 + lp, mix_var)
@@ -350,9 +357,9 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         d = _subpixel(lm, l0, lp, limit)
         jx, jy = ix + ox, iy + oy  # (the image's pixels)
         x, y = (jx + d, jy + d * sl) if axis == 0 else (jx + d * sl, jy + d)
-        ratio = vratio(iy, ix) if axis == 0 else 1.0 / np.maximum(vratio(iy, ix), 1e-10)
-        return (x, y, jx, jy, np.where(der[iy, ix] > 0, cls0, cls0 + 1), amp[iy, ix],
-                gx[iy, ix], gy[iy, ix], ratio, operator(a_own, axis, iy, ix), sl)
+        ratio = vratio(fl) if axis == 0 else 1.0 / np.maximum(vratio(fl), 1e-10)
+        return (x, y, jx, jy, np.where(_at(der, fl) > 0, cls0, cls0 + 1), _at(amp, fl),
+                _at(gx, fl), _at(gy, fl), ratio, operator(a_own, axis, fl), sl)
 
     out = parallel_map(family, ((0, vmask, av, ah, 0), (1, hmask, ah, av, 2)))
     cat = [np.concatenate([o[k] for o in out]) for k in range(11)]

@@ -249,16 +249,26 @@ def line_taps(ix: np.ndarray, iy: np.ndarray, axis, slope: np.ndarray, step,
     off = np.asarray(slope, np.float64)[:, None, None] * step[None, :, None]
     f = np.floor(off)
     t = off - f
-    wts = np.concatenate([((-0.5 * t + 1.0) * t - 0.5) * t, (1.5 * t - 2.5) * t * t + 1.0,
-                          ((-1.5 * t + 2.0) * t + 0.5) * t, (0.5 * t - 0.5) * t * t], axis=2)
+    wts = np.empty(off.shape[:2] + (4,))
+    wts[..., :1] = ((-0.5 * t + 1.0) * t - 0.5) * t
+    wts[..., 1:2] = (1.5 * t - 2.5) * t * t + 1.0
+    wts[..., 2:3] = ((-1.5 * t + 2.0) * t + 0.5) * t
+    wts[..., 3:] = (0.5 * t - 0.5) * t * t
     ix, iy = np.asarray(ix, np.int64), np.asarray(iy, np.int64)
     # the coordinate along the search axis (one per step) and the four across it, clamped
     run = np.where(along_x, ix, iy)[:, None] + step.astype(np.int64)[None, :]  # (N, K)
     np.clip(run, 0, np.where(along_x, w - 1, h - 1)[:, None], out=run)
     across = f[..., 0].astype(np.int64)
     across += np.where(along_x, iy, ix)[:, None]
+    top = np.where(along_x, h - 1, w - 1)[:, None]
+    if not across.size or (across.min() >= 1 and np.all(across <= top - 2)):
+        # no tap across clamped (the usual case): the four are one pixel row (column) apart
+        # in the flat image
+        stride = np.where(along_x, w, 1)[:, None, None] * np.arange(-1, 3)[None, None, :]
+        base = np.where(along_x[:, None], across * w + run, across + run * w)
+        return base[:, :, None] + stride, wts
     across = across[:, :, None] + np.arange(-1, 3)[None, None, :]  # (N, K, 4)
-    np.clip(across, 0, np.where(along_x, h - 1, w - 1)[:, None, None], out=across)
+    np.clip(across, 0, top[:, :, None], out=across)
     vx = along_x[:, None, None]
     run = np.where(along_x[:, None], run, run * w)[:, :, None]
     return np.where(vx, across * w, across) + run, wts
