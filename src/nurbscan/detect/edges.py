@@ -269,8 +269,9 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
     oblique_ops = False
     if families:
         # the gradient's components along the two families' local normals
-        sy, sx = np.nonzero(strong)
-        gxs, gys = gx[sy, sx], gy[sy, sx]
+        fs = np.flatnonzero(strong)  # (flat pixel indices: one index for the gathers)
+        sy, sx = np.divmod(fs, w)
+        gxs, gys = _at(gx, fs), _at(gy, fs)
         tv, th = family_normals(gx, gy, strong, FAMILY_TILE, pixels=(sy, sx, gxs, gys))
         # |g . n|^2 = (|g|^2 + (gx^2 - gy^2) cos 2t + 2 gx gy sin 2t) / 2 for n at angle t,
         # with the doubled-angle vectors interpolated bilinearly between the tiles
@@ -278,7 +279,7 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         del gxs, gys
 
         def component(t):  # one family's (the two side by side: _threads)
-            c2, s2 = (_tiles_to_pixels(f(2 * t), (h, w))[sy, sx] for f in (np.cos, np.sin))
+            c2, s2 = (_at(_tiles_to_pixels(f(2 * t), (h, w)), fs) for f in (np.cos, np.sin))
             r = np.hypot(c2, s2)
             return mag2 + (diff2 * c2 + prod2 * s2) / np.where(r > 0, r, 1.0)
 
@@ -286,12 +287,12 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         vmask = np.zeros((h, w), bool)
         hmask = np.zeros((h, w), bool)
         d2 = dominance * dominance
-        vmask[sy, sx] = comp[0] >= d2 * comp[1]
-        hmask[sy, sx] = comp[1] > d2 * comp[0]
+        vmask.ravel()[fs] = comp[0] >= d2 * comp[1]
+        hmask.ravel()[fs] = comp[1] > d2 * comp[0]
         # squared ratio of the vertical family's component to the horizontal one's
         ratio2 = np.zeros((h, w), np.float32)
-        ratio2[sy, sx] = comp[0] / np.maximum(comp[1], 1e-20)
-        del sy, sx, comp, mag2, diff2, prod2
+        ratio2.ravel()[fs] = comp[0] / np.maximum(comp[1], 1e-20)
+        del fs, sy, sx, comp, mag2, diff2, prod2
 
         def vratio(fl):
             return np.sqrt(np.maximum(_at(ratio2, fl), 0.0))
@@ -337,10 +338,10 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         else:
             c[1:-1, :] = (mask[1:-1, :] & (amp[1:-1, :] > amp[:-2, :])
                           & (amp[1:-1, :] >= amp[2:, :]))
-        iy, ix = np.nonzero(c)
+        fl = np.flatnonzero(c)  # (flat pixels: one index for the many gathers)
+        iy, ix = np.divmod(fl, w)
         del c
         step = (0, 1) if axis == 0 else (1, 0)  # (dy, dx) of one step along the search axis
-        fl = iy * w + ix  # (the flat pixels: one index for the many gathers)
         lm, l0, lp = (ln(_at(amp, fl + k * (step[0] * w + step[1]))) for k in (-1, 0, 1))
         sl, limit = np.zeros(len(iy)), 0.5
         if balanced:
