@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .decode import small_ints
 from .edges import EdgePoints, detect_edge_points
 from .lines import fit_lines, join_collinear, neighbour_fit, trace_lines
 from .prepare import NoGrid, Prepared
@@ -288,7 +289,8 @@ def extend_lines(x, y, strength, line, direction, edge, extra, shape, min_streng
         return x, y, strength, line
     line_all = np.r_[line, att[a]]
     vk = direction[line_all] == 0
-    o = np.lexsort((np.where(vk, np.r_[y, extra.y[a]], np.r_[x, extra.x[a]]), line_all))
+    o = np.lexsort((np.where(vk, np.r_[y, extra.y[a]], np.r_[x, extra.x[a]]),
+                    small_ints(line_all)))
     x, y = np.r_[x, extra.x[a]][o], np.r_[y, extra.y[a]][o]
     strength = np.r_[strength, extra.strength[a]][o]
     new = np.r_[np.zeros(len(line), bool), np.ones(len(a), bool)][o]

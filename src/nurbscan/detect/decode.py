@@ -108,11 +108,17 @@ def classify_colours(samples: np.ndarray, rgb: np.ndarray, iterations: int = 5,
     return codes.astype(np.int64), centres
 
 
-def _small_ints(values: np.ndarray, bound: int) -> np.ndarray:
-    """``values`` (non-negative integers below ``bound``) as uint16 where they fit: the same
-    order, and :func:`numpy.lexsort`'s stable sort of a 16-bit key is a radix sort (a third
-    faster than the merge sort of 64-bit keys)."""
-    if bound <= 65536 and (not len(values) or int(values.min()) >= 0):
+def small_ints(values: np.ndarray, bound: int | None = None) -> np.ndarray:
+    """An integer sort key as uint16 where its values fit (non-negative, below ``bound``,
+    default their maximum + 1), else as it is: the same order, and :func:`numpy.lexsort`'s
+    stable sort of a 16-bit key is a radix sort (about a third faster than the merge sort
+    of 64-bit keys)."""
+    values = np.asarray(values)
+    if not len(values):
+        return values
+    if bound is None:
+        bound = int(values.max()) + 1
+    if bound <= 65536 and int(values.min()) >= 0:
         return values.astype(np.uint16)
     return values
 
@@ -142,8 +148,7 @@ def band_crossings(across: np.ndarray, run: np.ndarray, cls: np.ndarray, ratio: 
         Positions in ``order`` of the rising point of each band crossing (the falling one is
         the next position).
     """
-    run = np.asarray(run)
-    order = np.lexsort((across, _small_ints(run, int(run.max()) + 1 if len(run) else 0)))
+    order = np.lexsort((across, small_ints(run)))
     a, r, c = across[order], run[order], cls[order]
     n = len(a)
     if n < 2:
@@ -301,7 +306,7 @@ def oblique_runs(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.n
     src = np.nonzero(succ >= 0)[0]
     dst = succ[src]
     # a point met by several rays keeps the one passing nearest to it
-    o = np.lexsort((perp_of[src], _small_ints(dst, n)))
+    o = np.lexsort((perp_of[src], small_ints(dst, n)))
     first = np.r_[True, dst[o][1:] != dst[o][:-1]] if len(o) else np.zeros(0, bool)
     src, dst = src[o][first], dst[o][first]
     g = coo_matrix((np.ones(len(src)), (src, dst)), shape=(n, n))
