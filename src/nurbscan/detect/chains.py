@@ -237,9 +237,24 @@ def attach_points(line, cls, ix, iy, extra, shape, rounds: int = 3) -> np.ndarra
     dy, dx = np.mgrid[-1:2, -1:2]
     dy, dx = dy.ravel(), dx.ravel()
     free = np.nonzero(att < 0)[0]
+    sk = sl = pending = None
+    unique = False
     for _ in range(rounds):
-        o = np.argsort(okey)
-        sk, sl = okey[o], oline[o]
+        if pending is not None and unique:
+            # the sorted keys with the last round's points merged in, where every key is
+            # distinct (then any sort gives these arrays); else sorted again, as before
+            nk, nl = pending
+            on = np.argsort(nk)
+            nk, nl = nk[on], nl[on]
+            pos = np.searchsorted(sk, nk)
+            clash = sk[np.minimum(pos, len(sk) - 1)] == nk if len(sk) else np.zeros(0, bool)
+            unique = not (np.any(clash) or np.any(nk[1:] == nk[:-1]))
+            if unique:
+                sk, sl = np.insert(sk, pos, nk), np.insert(sl, pos, nl)
+        if pending is None or not unique:
+            o = np.argsort(okey)
+            sk, sl = okey[o], oline[o]
+            unique = bool(np.all(sk[1:] != sk[:-1]))
         if not len(free) or not len(sk):
             break
         ny = np.clip(ey[free, None] + dy[None, :], 0, h - 1)
@@ -255,16 +270,20 @@ def attach_points(line, cls, ix, iy, extra, shape, rounds: int = 3) -> np.ndarra
             break
         att[free[new]] = hi[new]
         added = free[new]
-        okey = np.r_[okey, keys(ecls[added], ey[added], ex[added])]
-        oline = np.r_[oline, hi[new]]
+        pending = keys(ecls[added], ey[added], ex[added]), hi[new]
+        okey = np.r_[okey, pending[0]]
+        oline = np.r_[oline, pending[1]]
         # the next round asks only the free points beside a point just attached (of their
         # class): the others' 8 neighbours are as they were, and so is their answer (the
         # same result; 2 of the 3 rounds' look-ups saved, 7.1 MP view)
         ny, nx = ey[added, None] + dy[None, :], ex[added, None] + dx[None, :]
         inside = (ny >= 0) & (ny < h) & (nx >= 0) & (nx < w)
-        near = keys(np.repeat(ecls[added, None], 9, 1)[inside], ny[inside], nx[inside])
+        near = np.unique(keys(np.repeat(ecls[added, None], 9, 1)[inside], ny[inside],
+                              nx[inside]))
         free = np.nonzero(att < 0)[0]
-        free = free[np.isin(keys(ecls[free], ey[free], ex[free]), near)]
+        fk = keys(ecls[free], ey[free], ex[free])
+        at = np.minimum(np.searchsorted(near, fk), len(near) - 1)
+        free = free[near[at] == fk] if len(near) else free[:0]
     return att
 
 
