@@ -94,7 +94,7 @@ def edge_points(grid, white, pattern, sigma_per_band: float | None = None):
 
 
 def refined_points(pts, nrm, opt, sigma, band, pattern, shape, truth=None):
-    """The second pass of ``detect_grid`` (:func:`~nurbscan.detect.edges.refine_by_channels`:
+    """The second pass of ``detect_grid`` (:func:`~nurbscan.detect.refine.refine_by_channels`:
     the edge re-measured in its band's clean colour channels) for every traced point, with
     the band's colour of its true label ``band`` (-1: no label). Returns the positions of all
     of ``pts``: re-measured where the pass could, else (untraced points too) the first
@@ -103,9 +103,9 @@ def refined_points(pts, nrm, opt, sigma, band, pattern, shape, truth=None):
     after the oracle dropped those more than 0.5 px off their true edge, as the detector's
     filters would."""
     from nurbscan.detect import trace_lines
-    from nurbscan.detect.edges import refine_by_channels
     from nurbscan.detect.evaluate import point_truth
     from nurbscan.detect.lines import chain_normals, smooth_chains
+    from nurbscan.detect.refine import refine_by_channels
 
     order, line = trace_lines(pts, shape, min_length=opt["min_length"])
     keep = band[order] >= 0  # the chains keep their order

@@ -489,7 +489,7 @@ def test_channel_refinement_removes_crossing_bias():
     pass must remove it. With the families' directions, the first pass takes the derivative
     along the green band's edges, which does not see them (:func:`across_operators`): the
     bias is gone from the sum signal as well (max 0.38 -> 0.03 px)."""
-    from nurbscan.detect.edges import refine_by_channels
+    from nurbscan.detect.refine import refine_by_channels
 
     h, w = 140, 140
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
@@ -541,7 +541,7 @@ def test_channel_refinement_removes_crossing_bias():
 def test_across_operators_take_each_familys_own_component():
     """g . A_v = a and g . A_h = b for a gradient g = a n_v + b n_h (oblique families); the
     image axes where the families are upright."""
-    from nurbscan.detect.edges import across_operators
+    from nurbscan.detect.oblique import across_operators
 
     tv = np.array([[0.0, np.radians(170.0)], [np.radians(20.0), 0.3]])
     th = np.array([[np.pi / 2, np.radians(120.0)], [np.radians(60.0), 1.6]])
@@ -797,7 +797,7 @@ def test_fit_line_row_keeps_points_on_their_rows(pattern, oblique_view):
     an unknown fit_line is an error."""
     from nurbscan.detect import normalize
     from nurbscan.detect.core import as_float_planes
-    from nurbscan.detect.edges import MAX_SLOPE
+    from nurbscan.detect.oblique import MAX_SLOPE
 
     g, w, _ = oblique_view
     nrm = normalize(as_float_planes(g, gamma=2.2), as_float_planes(w, gamma=2.2))
@@ -1350,8 +1350,9 @@ def test_family_normals_of_an_oblique_view(oblique_view):
     """The two modes of the gradient directions are the two families' normals (exact field:
     50 and 92 degrees), the one nearer the y axis taken as the horizontal bands'."""
     from nurbscan.detect.core import as_float_planes
-    from nurbscan.detect.edges import family_normals, gradient
+    from nurbscan.detect.edges import gradient
     from nurbscan.detect.normalize import normalize
+    from nurbscan.detect.oblique import family_normals
 
     g, w, _ = oblique_view
     nrm = normalize(as_float_planes(g, gamma=2.2), as_float_planes(w, gamma=2.2))
@@ -1585,7 +1586,7 @@ def test_family_fit_labels_the_pieces_of_an_oblique_view(pattern, oblique_view, 
 def test_balanced_fit_line_measures_an_oblique_view(pattern, oblique_view, oblique_result):
     """On the oblique view (families 42 degrees apart) the balanced fit line takes the
     crossing bands' pull out of the edge points next to them (module notes of
-    :mod:`nurbscan.detect.edges`; measured against the row, both read along the pixel rows:
+    :mod:`nurbscan.detect.oblique`; measured against the row, both read along the pixel rows:
     rms 0.0733 -> 0.0412 px, coverage 0.718 -> 0.814, within 2 px of a crossing band 0.423
     -> 0.547, intersections 0.404 -> 0.187 px; along the grid, the default: 0.0642 ->
     0.0397 px, 0.770 -> 0.825, 0.425 -> 0.542, 0.343 -> 0.180 px. Before short unconfirmed
@@ -1617,7 +1618,7 @@ def test_fit_slopes_lie_between_the_other_edges_and_the_own_normal():
     other family's edges when the camera adds no blur (r = 0); along the family's own normal
     when all the blur is the camera's (r = 1); in between the line where
     (n_other . e) / (n_own . e) = r cos(phi); clipped to MAX_SLOPE."""
-    from nurbscan.detect.edges import MAX_SLOPE, fit_slopes
+    from nurbscan.detect.oblique import MAX_SLOPE, fit_slopes
 
     def unit(deg):
         return np.array([[np.cos(np.radians(deg)), np.sin(np.radians(deg))]])
@@ -1646,7 +1647,7 @@ def test_fit_slopes_lie_between_the_other_edges_and_the_own_normal():
 def test_line_taps_mix_search_axes_and_clamp_at_the_border():
     """line_taps with a per-point search axis gives the per-axis samples of _along_line,
     also where the taps run past the image's border (clamped)."""
-    from nurbscan.detect.edges import _along_line, line_taps
+    from nurbscan.detect.oblique import _along_line, line_taps
 
     img = np.random.default_rng(2).random((30, 40)).astype(np.float32)
     ix, iy = np.array([1, 20, 38, 5, 20, 39]), np.array([0, 15, 29, 1, 28, 10])
@@ -1665,7 +1666,7 @@ def test_line_taps_mix_search_axes_and_clamp_at_the_border():
 def test_samples_along_a_slanted_line_are_exact_for_quadratics():
     """The fit line's samples (cubic convolution across the search axis) reproduce a
     quadratic image exactly, for both search axes and fractional offsets."""
-    from nurbscan.detect.edges import _along_line
+    from nurbscan.detect.oblique import _along_line
 
     yy, xx = np.mgrid[0:40, 0:50].astype(np.float64)
 
@@ -1837,7 +1838,7 @@ def test_channel_refinement_of_a_tilted_edge():
     """A clean red band tilted 25 degrees (exact blurred image): judged along the edge's own
     normal it is re-measured (and exact); judged along x / y (the default normal) its
     derivative along y looks like a crossing band's and it is left alone."""
-    from nurbscan.detect.edges import refine_by_channels
+    from nurbscan.detect.refine import refine_by_channels
 
     h, w = 120, 120
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)

@@ -19,6 +19,7 @@ from scipy.spatial import cKDTree
 
 from ._threads import parallel_map
 from .chains import _along_across, chain_end_residual
+from .decode import small_ints
 from .families import local_plane
 from .intersections import Intersections
 from .labels import group_median
@@ -243,7 +244,7 @@ def row_support(x: np.ndarray, y: np.ndarray, direction: np.ndarray, coord: np.n
 
     def family(d):  # one family's support (the two side by side: _threads)
         idx = np.nonzero(direction == d)[0]
-        o = idx[np.lexsort((acr[idx], run[idx]))]
+        o = idx[np.lexsort((acr[idx], small_ints(run[idx])))]
         a, c, r = acr[o], coord[o], run[o]
         m = len(o)
         p = np.arange(m)

@@ -21,7 +21,7 @@ from scipy.sparse.csgraph import connected_components
 
 from .chains import Chains
 from .crossings import Reading
-from .decode import line_labels
+from .decode import line_labels, small_ints
 from .lines import join_collinear
 from .prepare import NoGrid, Prepared
 
@@ -292,7 +292,7 @@ def row_order(x, y, cls) -> list:
             continue
         run = np.round(y[idx] if d == 0 else x[idx]).astype(np.int64)
         acr = x[idx] if d == 0 else y[idx]
-        o = np.lexsort((acr, run))
+        o = np.lexsort((acr, small_ints(run)))
         out.append((d, idx[o], run[o], acr[o]))
     return out
 
@@ -454,7 +454,7 @@ def group_median(values: np.ndarray, group: np.ndarray, n: int, fill: float = np
     group) and (n,) counts. NaN values are left out."""
     ok = np.isfinite(values)
     v, g = values[ok], group[ok]
-    o = np.lexsort((v, g))
+    o = np.lexsort((v, small_ints(g)))
     v = v[o]
     cnt = np.bincount(g, minlength=n)
     start = np.cumsum(cnt) - cnt

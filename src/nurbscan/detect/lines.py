@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .decode import small_ints
 from .edges import EdgePoints
 
 
@@ -109,7 +110,7 @@ def trace_lines(pts: EdgePoints, shape: tuple[int, int], min_length: int = 4,
     keep = cnt[inv] == 1
     comp = components(p, q, keep)
     idx = np.nonzero(keep)[0]
-    o = np.lexsort((run[idx], comp[idx]))
+    o = np.lexsort((small_ints(run[idx]), small_ints(comp[idx])))
     idx = idx[o]
     c = comp[idx]
     _, inv, cnt = np.unique(c, return_inverse=True, return_counts=True)
@@ -364,7 +365,7 @@ def join_collinear(x: np.ndarray, y: np.ndarray, cls: np.ndarray, line: np.ndarr
     g = coo_matrix((np.ones(len(src)), (src, dst)), shape=(nl, nl))
     _, comp = connected_components(g, directed=False)
     pc = comp[line]
-    o = np.lexsort((along, pc))
+    o = np.lexsort((along, small_ints(pc)))
     _, nl2 = np.unique(pc[o], return_inverse=True)
     return o.astype(np.int64), nl2.astype(np.int64)
 

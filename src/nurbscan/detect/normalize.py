@@ -86,9 +86,10 @@ class Normalised:
 
     def colour_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Normalised colour (N, 3) at points (x, y) px (bilinear)."""
-        from .decode import bilinear
+        from .decode import bilinear_at, bilinear_taps
 
-        return np.stack([bilinear(c, x, y) * bilinear(i, x, y)
+        taps = bilinear_taps(self.signal.shape, x, y)  # (the same for the six planes)
+        return np.stack([bilinear_at(c, taps) * bilinear_at(i, taps)
                          for c, i in zip(self.channels, self._inverses(), strict=True)], axis=1)
 
     def planes(self) -> list[np.ndarray]:

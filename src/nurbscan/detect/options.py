@@ -136,7 +136,7 @@ class EdgeOptions(_Group):
         20 px in demo view 5).
     families : bool
         Tell vertical-band from horizontal-band edge pixels by the two families' local
-        directions (:func:`~nurbscan.detect.edges.family_normals`) instead of by ``|g_x|``
+        directions (:func:`~nurbscan.detect.oblique.family_normals`) instead of by ``|g_x|``
         against ``|g_y|``: where the vertical bands tilt past 45 degrees (the teapot's lid)
         they are otherwise read as horizontal and spoil that family's decoding too. 7.1 MP
         teapot views 0-7, with the slope-following tracer and the tilt-aware refinement:
@@ -148,7 +148,7 @@ class EdgeOptions(_Group):
     oblique : bool
         Find and re-measure each family's edges by its own component of the gradient, the
         derivative along the other family's edges (``families``;
-        :func:`~nurbscan.detect.edges.across_operators`), instead of the row and column
+        :func:`~nurbscan.detect.oblique.across_operators`), instead of the row and column
         derivatives, which the crossing bands' edges disturb where the two families are not
         upright (only with ``families``, where the bands are resolved). 7.1 MP teapot view
         (the other options at their defaults): coverage 0.690 -> 0.702 (within 2 px of a
@@ -158,8 +158,8 @@ class EdgeOptions(_Group):
     fit_line : {"balanced", "row"}
         With ``oblique``, the line along which each edge point's profile is fitted (first
         pass and re-measurement): "balanced", the line on which a crossing band's two shifts
-        of the profile's peak cancel (:func:`~nurbscan.detect.edges.fit_slopes`, module notes
-        of :mod:`~nurbscan.detect.edges`), or the pixel row (column). 7.1 MP teapot view 0,
+        of the profile's peak cancel (:func:`~nurbscan.detect.oblique.fit_slopes`, module notes
+        of :mod:`~nurbscan.detect.oblique`), or the pixel row (column). 7.1 MP teapot view 0,
         row -> balanced: at 1x noise coverage 0.7009 -> 0.7240 (within 2 px of a crossing
         band 0.588 -> 0.639), RMS 0.0398 -> 0.0371 px, intersections 0.138 -> 0.147 px; at 0x
         0.7390 -> 0.7555, 0.0294 -> 0.0260 px; at 3x 0.6040 -> 0.6291, 0.0646 -> 0.0623 px;

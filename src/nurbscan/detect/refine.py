@@ -3,7 +3,7 @@ selected, re-measured in their band's clean colour channels and filtered.
 
 :func:`select_points` keeps the labelled chains and their points that are one edge of a band
 crossing (and those only the re-measurement keeps); :func:`refine_points` re-measures them
-(:func:`~nurbscan.detect.edges.refine_by_channels`), places the points without a clean
+(:func:`refine_by_channels`), places the points without a clean
 channel on their neighbours' line, drops kinks, the partners of dropped points and the
 disturbed chain ends and tails (:func:`~nurbscan.detect.chains.chain_end_residual`,
 :func:`~nurbscan.detect.chains.chain_tails`). Returns :class:`Lines`.
@@ -16,11 +16,13 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ._threads import parallel_map
 from .chains import SIGMA_ALONG, Chains, _along_across, chain_end_residual, chain_tails
 from .crossings import Reading
-from .edges import refine_by_channels
+from .edges import _subpixel, gradient
 from .labels import Labels
 from .lines import chain_normals, local_residual, neighbour_fit
+from .oblique import line_taps, sample_taps
 from .prepare import NoGrid, Prepared
 
 #: Drop edge points closer than this (camera px) to an edge pixel of the other direction; 0
@@ -218,3 +220,136 @@ def refine_points(sel: Selection, chains: Chains, reading: Reading, prep: Prepar
         px, py, line, strength = px[ke], py[ke], line[ke], strength[ke]
     return Lines(x=px, y=py, strength=strength, line=line, band=lab, direction=ldir,
                  edge=lines.edge, votes=lines.votes, agreement=lines.agreement)
+
+
+def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray,
+                       colour: np.ndarray, x: np.ndarray, y: np.ndarray, sigma: float,
+                       sigma_along: float | None = None, clean: float = 0.25,
+                       normal: np.ndarray | None = None, across: np.ndarray | None = None,
+                       slope: np.ndarray | None = None
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Second, per-channel sub-pixel pass for decoded edge points (method.md section 2).
+
+    Where a band of the other direction crosses an edge, the crossing rule (channel-wise
+    maximum) saturates the channels the two colours share, and near the crossing band's own edge
+    those channels carry a corner structure whose gradient leaks into the row (column)
+    derivative and shifts the fitted peak. A decoded point knows its band's colour (``colour``,
+    (N, 3) bool): the edge is re-measured in the sum of the derivatives of those channels ``c``
+    of the colour that are *clean* at the point, i.e. whose derivative along the edge is at most
+    ``clean`` times the one across it (no crossing band edge passes there), with the same
+    log-parabola fit across the edge as :func:`~nurbscan.detect.edges.detect_edge_points`. Using
+    only the band's channels also leaves out the noise of the channels without an edge. The
+    derivatives along and across the edge are taken along its tangent and normal (``normal``),
+    so a tilted edge is judged as clean as an upright one.
+
+    Parameters
+    ----------
+    channels : sequence of 3 ndarray (H, W) float32
+        Normalised colour channels (indexed once each, from up to two threads at once,
+        :mod:`~nurbscan.detect._threads`: a lazy sequence such as
+        :meth:`~nurbscan.detect.normalize.Normalised.lazy_planes` holds one per thread).
+    ix, iy : (N,) int
+        Edge pixels; ``cls`` (N,) their classes (0..3, :data:`~nurbscan.detect.edges.CLASSES`).
+    colour : (N, 3) bool
+        Channels lit in the point's band.
+    x, y : (N,) float
+        The first pass's sub-pixel positions, kept where no channel is clean or the peak of the
+        channel sum is not at the edge pixel.
+    sigma, sigma_along : float
+        Filter scales, px (as in :func:`~nurbscan.detect.edges.gradient`).
+    clean : float
+        Largest ratio of a channel's derivative along the edge to the one across it.
+    normal : (N, 2) float, optional
+        Unit normal of each edge (the first pass's gradient direction); default the row
+        direction (1, 0) for vertical-band edges and the column direction (0, 1) otherwise.
+    across : (N, 2) float, optional
+        The edge derivative is ``g . across`` (:attr:`~nurbscan.detect.edges.EdgePoints.across`, the
+        derivative along the other family's edges); default ``g_x`` for vertical-band edges and
+        ``g_y`` otherwise.
+    slope : (N,) float, optional
+        The line of each point's fit (:attr:`~nurbscan.detect.edges.EdgePoints.slope`,
+        :func:`~nurbscan.detect.oblique.fit_slopes`); default the row (column).
+
+    Returns
+    -------
+    x, y : (N,) float64
+        Refined positions, camera px.
+    refined : (N,) bool
+        Points re-measured.
+    """
+    n = len(ix)
+    x = np.asarray(x, np.float64).copy()
+    y = np.asarray(y, np.float64).copy()
+    if n == 0:
+        return x, y, np.zeros(0, bool)
+    vert = cls < 2
+    sgn = np.where(cls % 2 == 0, 1.0, -1.0)
+    axes = np.where(vert[:, None], [1.0, 0.0], [0.0, 1.0])
+    if normal is None:
+        normal = axes
+    nx, ny = np.asarray(normal, np.float64).T
+    # across-edge derivative samples at offsets -1, 0, +1, and the along-edge derivative
+    acc = np.zeros((n, 3))
+    used = np.zeros(n, np.int64)
+    sl = np.zeros(n) if slope is None else np.asarray(slope, np.float64)
+    ix, iy = np.asarray(ix, np.int64), np.asarray(iy, np.int64)
+    mag = []
+    if across is None:
+        across = axes
+    ux, uy = (np.asarray(across, np.float64).T[:, :, None] * sgn[None, :, None])
+
+    # the filters over the points' window only (the same values there as over the image):
+    # the reach of the filters and of the taps (a step and a cubic tap across) around them
+    h, w = getattr(channels, "shape", None) or channels[0].shape
+    m = max(int(np.ceil(4.0 * max(sigma, sigma_along or 0.0))), 1) + 8
+    rows = slice(max(int(iy.min()) - m, 0), min(int(iy.max()) + m + 1, h))
+    cols = slice(max(int(ix.min()) - m, 0), min(int(ix.max()) + m + 1, w))
+    if hasattr(channels, "crop"):
+        channels = channels.crop(rows, cols)
+    else:
+        channels = _Cropped(channels, rows, cols)
+    jx, jy = ix - cols.start, iy - rows.start
+    # (N, 2): the samples one step before and after each point along its fit line, from taps
+    # shared by the images (the centre sample is the pixel's own value: its taps' weights are
+    # 0, 1, 0, 0)
+    taps = line_taps(jx, jy, np.where(vert, 0, 1), sl, (-1.0, 1.0),
+                     (rows.stop - rows.start, cols.stop - cols.start))
+    ux0, uy0 = ux[:, 0], uy[:, 0]
+
+    def channel(c):  # one channel's profiles (the channels side by side: _threads)
+        img = channels[c]  # (a lazy sequence computes each plane here)
+        gx, gy = gradient(img, sigma, sigma_along)
+        del img
+        side = sample_taps(gx, *taps) * ux + sample_taps(gy, *taps) * uy
+        cx, cy = gx[jy, jx], gy[jy, jx]
+        del gx, gy
+        prof = np.empty((n, 3))
+        prof[:, 0], prof[:, 2] = side[:, 0], side[:, 1]
+        prof[:, 1] = cx.astype(np.float64) * ux0 + cy.astype(np.float64) * uy0
+        along = nx * cy - ny * cx
+        normal_d = nx * cx + ny * cy
+        ok = colour[:, c] & (np.abs(along) <= clean * np.abs(normal_d)) & (prof[:, 1] > 0)
+        return prof, ok
+
+    for prof, ok in parallel_map(channel, range(3)):  # (summed in the channels' order)
+        mag.append(prof[:, 1])
+        acc += np.where(ok[:, None], prof, 0.0)
+        used += ok
+    big = np.max(np.stack(mag, 1), axis=1)
+    peak = (used > 0) & (acc[:, 1] > 0.3 * big) & (acc[:, 1] >= acc[:, 0]) \
+        & (acc[:, 1] >= acc[:, 2]) & (acc.min(1) > 0)
+    la = np.log(np.maximum(acc, 1e-9))
+    d = _subpixel(la[:, 0], la[:, 1], la[:, 2])  # |d| <= 0.5: the centre sample is the peak
+    x = np.where(peak, np.where(vert, ix + d, ix + d * sl), x)
+    y = np.where(peak, np.where(vert, iy + d * sl, iy + d), y)
+    return x, y, peak
+
+
+class _Cropped:
+    """The window ``(rows, cols)`` of each of a sequence of images, taken when indexed."""
+
+    def __init__(self, images, rows: slice, cols: slice):
+        self._images, self._rows, self._cols = images, rows, cols
+
+    def __getitem__(self, c: int) -> np.ndarray:
+        return self._images[c][self._rows, self._cols]

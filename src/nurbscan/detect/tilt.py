@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 #: The detector tells the families apart by their normals, the one nearer the image's y axis
-#: taken as the horizontal bands' (:func:`~nurbscan.detect.edges.family_normals`, per tile).
+#: taken as the horizontal bands' (:func:`~nurbscan.detect.oblique.family_normals`, per tile).
 #: Where the two normals are about as far from the y axis (a grid turned by about 45
 #: degrees), tiles take either family for the other; when the two angles to the x axis differ
 #: by less than twice this (degrees), the photograph is read in its image turned level
