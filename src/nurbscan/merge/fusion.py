@@ -393,9 +393,9 @@ def _loose_edges(model, P: np.ndarray, edges: np.ndarray, reach: float, centres:
     view = np.asarray(model.edge_view, int)
     if loose.sum() < 3:
         return np.zeros((0, 3)), np.zeros((0, 3))
-    keep = np.isin(view, np.unique(view[loose]))  # the neighbours come from those views
-    _, N = _edge_normals(edges[keep], view[keep], {} if len(model.points) else centres)
-    N = N[loose[keep]]
+    # the normals of the loose points only; their neighbours from all of their view's points
+    _, N = _edge_normals(edges, view, {} if len(model.points) else centres, at=loose)
+    N = N[loose]
     E = edges[loose]
     if len(model.points):
         ref = np.asarray(model.normals, float)[cKDTree(model.points).query(E)[1]]
@@ -403,20 +403,26 @@ def _loose_edges(model, P: np.ndarray, edges: np.ndarray, reach: float, centres:
     return E, N
 
 
-def _edge_normals(points: np.ndarray, view: np.ndarray, centres: dict, k: int = 24):
+def _edge_normals(points: np.ndarray, view: np.ndarray, centres: dict, k: int = 24,
+                  at: np.ndarray | None = None):
     """Unit normals of edge points by PCA of their ``k`` nearest points of the same view
-    (Hoppe et al. 1992), turned towards the view's camera."""
+    (Hoppe et al. 1992), turned towards the view's camera. ``at`` (bool (N,)): only those
+    points' normals (their neighbours still from every point of their view), the others
+    zero; None: all."""
     N = np.zeros_like(points)
-    for v in np.unique(view):
+    want = np.ones(len(points), bool) if at is None else np.asarray(at, bool)
+    for v in np.unique(view[want]):
         sel = np.flatnonzero(view == v)
         Q = points[sel]
-        _, idx = cKDTree(Q).query(Q, k=min(k, len(Q)))
+        here = want[sel]
+        X = Q[here]
+        _, idx = cKDTree(Q).query(X, k=min(k, len(Q)))
         nb = Q[idx] - Q[idx].mean(1, keepdims=True)
         cov = np.einsum("nki,nkj->nij", nb, nb)
         _, vec = np.linalg.eigh(cov)
         n = vec[:, :, 0]
-        ref = centres.get(int(v), Q.mean(0) + 1e3) - Q if centres else Q - Q.mean(0)
-        N[sel] = np.where((n * ref).sum(1, keepdims=True) < 0, -n, n)
+        ref = centres.get(int(v), Q.mean(0) + 1e3) - X if centres else X - Q.mean(0)
+        N[sel[here]] = np.where((n * ref).sum(1, keepdims=True) < 0, -n, n)
     return points, N
 
 

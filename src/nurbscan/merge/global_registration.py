@@ -25,9 +25,11 @@ the two passes' surfaces alone, as desktop scanners do:
    the passes' cameras and projectors saw as empty: a candidate's violation is the share of
    one pass's samples it moves into space in front of the other pass's measured surface,
    along the other pass's camera or projector rays, by more than ``free_space_tolerance``
-   (both ways, the mean). The least violation wins; the alignment stays ambiguous only
-   when another near-equal candidate violates less than ``free_space_margin`` more (a
-   sphere, a surface of revolution: every candidate is consistent).
+   (both ways, the mean; rays grazing the sample's surface beyond ``free_space_grazing``
+   and rays passing in front of the view's own points give no evidence). The least
+   violation wins; the alignment stays ambiguous only when another near-equal candidate
+   violates less than ``free_space_margin`` more (a sphere, a surface of revolution: every
+   candidate is consistent).
 
 Too small an overlap or too large an RMS means that the two surfaces are not two views of one
 object (or overlap too little to be aligned): :class:`~nurbscan.errors.NurbscanError`.
@@ -102,7 +104,12 @@ class GlobalOptions:
         other one violates by at least this share more.
     free_space_warn : float
         A chosen alignment that violates the free space by more than this share is warned
-        of (right alignments of the teapot's passes: about 0.2 %, wrong ones 2.8-37 %).
+        of (docs/accuracy.md, "Free space at full resolution").
+    free_space_grazing : float
+        Rays that meet a sample's surface more than this many degrees from its normal are
+        not tested (:mod:`nurbscan.merge.free_space`, module notes); 90: all are.
+    free_space_own_points : bool
+        Leave out rays that pass in front of the view's own points (the same notes).
     """
 
     voxel: float = 5.0
@@ -124,6 +131,8 @@ class GlobalOptions:
     free_space_voxel: float = 2.0
     free_space_margin: float = 0.01
     free_space_warn: float = 0.01
+    free_space_grazing: float = 75.0
+    free_space_own_points: bool = True
 
     def __post_init__(self) -> None:
         if not (self.voxel > 0 and self.icp_voxel > 0 and self.overlap_distance > 0):
@@ -482,13 +491,16 @@ def _free_space_scores(src, tgt, cands: list, free_space: tuple, opt: GlobalOpti
     target's samples that its inverse puts into the source's (``free_space_target``), and
     their mean (``free_space``)."""
     fs_src, fs_tgt = free_space
-    Ps = np.asarray(src.voxel_down_sample(opt.free_space_voxel).points)
-    Pt = np.asarray(tgt.voxel_down_sample(opt.free_space_voxel).points)
-    kw = {"tolerance": opt.free_space_tolerance, "reach": opt.free_space_reach}
+    s_fs = src.voxel_down_sample(opt.free_space_voxel)
+    t_fs = tgt.voxel_down_sample(opt.free_space_voxel)
+    Ps, Ns = np.asarray(s_fs.points), np.asarray(s_fs.normals)
+    Pt, Nt = np.asarray(t_fs.points), np.asarray(t_fs.normals)
+    kw = {"tolerance": opt.free_space_tolerance, "reach": opt.free_space_reach,
+          "grazing": opt.free_space_grazing, "own_points": opt.free_space_own_points}
     for c in cands:
         T = np.asarray(c["matrix"], float)
         Ti = np.linalg.inv(T)
-        vs = fs_tgt.violations(Ps @ T[:3, :3].T + T[:3, 3], **kw)[0].mean()
-        vt = fs_src.violations(Pt @ Ti[:3, :3].T + Ti[:3, 3], **kw)[0].mean()
+        vs = fs_tgt.violations(Ps @ T[:3, :3].T + T[:3, 3], Ns @ T[:3, :3].T, **kw)[0].mean()
+        vt = fs_src.violations(Pt @ Ti[:3, :3].T + Ti[:3, 3], Nt @ Ti[:3, :3].T, **kw)[0].mean()
         c["free_space_source"], c["free_space_target"] = round(float(vs), 6), round(float(vt), 6)
         c["free_space"] = round(0.5 * float(vs + vt), 6)
