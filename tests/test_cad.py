@@ -484,3 +484,55 @@ def test_seams_eligibility_finds_the_near_sheet_of_a_rippled_patch():
     assert np.array_equal(got, h < 0.1), (np.flatnonzero(got != (h < 0.1)), h.size)
     assert eligible(t, np.zeros(2000, int), 0.2).all()
     assert not eligible(t, np.full(2000, -1)).any()
+
+
+def test_cells_beside_own_data_the_patch_misses_are_cut():
+    """One view's patch (quarter 0's band) measured densely (0.003 mm noise) over its middle
+    latitudes, and along one latitude line 1 mm past them by accurate points that lie
+    0.3 mm inside the patch (the object bends away there, the patch runs on): the residual
+    test (median of the 6 nearest points) cuts the cells whose nearest points are on that
+    line, but keeps those between whose nearest points are the dense ones: they lie within
+    1 mm of data their patch misses by 0.3 mm. ``miss_sigma`` (15 robust sigmas of the view's
+    residuals, here about 0.003 mm; 3 cells) cuts every cell
+    within 3 cells of the missed line (no kept sample nearer than 1.2 mm to it) at the cost of
+    a band along that line only (area lost under 1.5 mm times its length)."""
+    from scipy.spatial import cKDTree
+
+    from nurbscan.evaluate.table import cad_samples
+
+    A = _band(quarter_sphere(0))
+    (u0, u1), (v0, v1) = A.domain
+    dv = v1 - v0
+    seen = sub_surface(A, (u0, u1), (v0 + 0.3 * dv, v0 + 0.7 * dv))
+    rng = np.random.default_rng(12)
+    X = _grid(seen, 80)
+    X = X + 0.003 * rng.standard_normal((len(X), 1)) * (X - CENTRE) / R
+    lat_hi = _latitude(_grid(seen, 40)).max()
+    # the missed line: 1 mm past the seen latitudes on the sphere, 0.3 mm inside the patch
+    t = np.linspace(u0, u1, 400)
+    Vl = np.full_like(t, v0 + 0.7 * dv)
+    Lp = A.evaluate(t, Vl)
+    w = Lp - CENTRE
+    lat = np.arcsin(w[:, 2] / np.linalg.norm(w, axis=1)) + 1.0 / R
+    ring = np.column_stack([np.cos(lat) * w[:, 0], np.cos(lat) * w[:, 1]]) / np.hypot(
+        w[:, 0], w[:, 1])[:, None]
+    L = CENTRE + (R - 0.3) * np.column_stack([ring, np.sin(lat)])
+    assert abs(_latitude(L) - (lat_hi + 1.0 / R)).max() < 1e-3
+    m = Model(surfaces=[{"kind": "gordon", "view": 0, "patch": 0, "n_curves": [41, 41],
+                         "vertical": [0, 1], "horizontal": [0, 1], "surface": A}],
+              views=[{"index": 0, "table_angle": 0.0}])
+    m.edge_points = np.concatenate([X, L])
+    m.edge_view = np.zeros(len(m.edge_points), int)
+
+    def nearest(cad):
+        P, _ = cad_samples(cad)
+        return cKDTree(L).query(P)[0].min()
+
+    old = cad_set(m, None, CadOptions(cell_mm=0.5, cover_mm=0.4, miss_sigma=None))
+    new = cad_set(m, None, OPT)
+    assert nearest(old) < 1.0, nearest(old)
+    assert nearest(new) > 1.2, (nearest(new), new.info)
+    assert new.info["cells_missed"] > 0 and old.info["cells_missed"] == 0
+    length = R * np.cos(lat_hi) * 0.5 * np.pi
+    lost = old.info["area_mm2"] - new.info["area_mm2"]
+    assert 0 < lost < 1.5 * length, (lost, length)
