@@ -236,3 +236,28 @@ def test_reconstruct_of_several_scans_reconstructs_each_then_merges(tmp_path, mo
     assert merged["scan"] == [Path("sa"), Path("sb")]
     assert merged["calib"] == [Path("ca.json"), Path("cb.json")]
     assert merged["max_triangles"] == 1000 and merged["quiet"] and not merged["no_refine"]
+
+
+def test_a_merge_is_the_same_from_run_to_run(teapot_passes):
+    """Issue #34: the same passes merged twice give the same transforms and points, and the
+    fusion of the merged samples (both passes' overlapping layers, as ``nurbscan merge``
+    fuses them) the same mesh, array for array (it differed before: Open3D's Poisson on 2
+    threads). Oracle of the mesh's being the merged surface: its vertices on pass A's true
+    surface."""
+    from nurbscan.merge.fusion import FusionOptions, fuse_samples
+
+    A, _, ma, mb = teapot_passes
+    opt = PassOptions(alignment=FAST, registration=RegistrationOptions(voxel=2.0))
+    (m0, r0), (m1, r1) = (merge_passes([ma, mb], ["A", "B"], opt) for _ in range(2))
+    assert r0["passes"][1]["refined_matrix"] == r1["passes"][1]["refined_matrix"]
+    assert np.array_equal(m0.points, m1.points) and np.array_equal(m0.normals, m1.normals)
+    fopt = FusionOptions(max_triangles=20000)
+    (V0, F0, _), (V1, F1, _) = (fuse_samples(m.points, m.normals, m.points, 2.0, fopt)
+                                for m in (m0, m1))
+    assert 1000 < len(F0) <= 20000
+    assert np.array_equal(V0, V1) and np.array_equal(F0, F1)
+    # most of it on the surface within the 20 000 triangles' chord error (where the passes
+    # saw it; the Poisson surface bridges what neither saw, trimmed only to the samples'
+    # spacing; measured: median 0.019 mm, 80th percentile 0.071 mm)
+    d = A.closest_point(V0[::10])[1]
+    assert np.median(d) < 0.05 and np.quantile(d, 0.8) < 0.2, np.quantile(d, [0.5, 0.8])

@@ -76,7 +76,12 @@ class FusionOptions:
     max_triangles : int
         Triangle budget (quadric decimation above it).
     workers : int
-        Threads of the Poisson solver (0: all CPUs).
+        Threads of the Poisson solver (0: all CPUs). One (the default) gives the same mesh,
+        byte for byte, from run to run; Open3D's solver on several threads does not (its
+        parallel reductions add in the order the threads finish: on the 1024 x 768 teapot
+        passes' merge, 9 runs on 2 threads gave 9 different Poisson meshes, 11 runs on 1 the
+        same; issue #34), for no more CPU time (3.0-3.7 s CPU on 1 thread, 3.0-4.2 s on 2;
+        docs/accuracy.md "Same inputs, same bytes").
     loose_edges : float or None
         Also fuse the triangulated edge points farther than this many pitches from every
         kept patch sample (decoded lines that belong to no complete patch), with normals from
@@ -100,7 +105,7 @@ class FusionOptions:
     subdivide: int = 1
     project_k: int = 12
     max_triangles: int = 300_000
-    workers: int = 2
+    workers: int = 1
     loose_edges: float | None = None
     colour: bool = True
     purpose: str = "the object's mesh"
