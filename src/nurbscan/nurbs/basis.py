@@ -77,7 +77,9 @@ def find_span(n: int, p: int, u, U: np.ndarray) -> np.ndarray:
     """
     u = np.asarray(u, dtype=float)
     span = np.searchsorted(U, u, side="right") - 1
-    return np.clip(span, p, n)
+    # np.minimum / np.maximum rather than np.clip: the same integers without np.clip's
+    # per-call argument checks (find_span runs thousands of times per view on short arrays)
+    return np.minimum(np.maximum(span, p), n)
 
 
 def basis_functions(span, u, p: int, U: np.ndarray) -> np.ndarray:

@@ -11,15 +11,21 @@ batched ``np.linalg.solve``.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from ..nurbs.basis import basis_functions, find_span
 
 
+@lru_cache(maxsize=1024)
 def uniform_knots01(n_spans: int, degree: int = 3) -> np.ndarray:
-    """Clamped uniform knots on [0, 1] with ``n_spans`` spans."""
+    """Clamped uniform knots on [0, 1] with ``n_spans`` spans (read-only; one array per
+    ``(n_spans, degree)``: thousands of chains per view share a few dozen knot vectors)."""
     inner = np.linspace(0.0, 1.0, n_spans + 1)
-    return np.concatenate([np.zeros(degree), inner, np.ones(degree)])
+    U = np.concatenate([np.zeros(degree), inner, np.ones(degree)])
+    U.flags.writeable = False
+    return U
 
 
 def _local_basis(t: np.ndarray, n: int, degree: int):

@@ -209,6 +209,12 @@ def build_lines(lines: list[Line3D], gap: float = 13.0, jump: float = 0.3,
     return fam["vertical"], fam["horizontal"]
 
 
+def _clamp(x, lo, hi):
+    """``np.clip(x, lo, hi)``, the same values (NaN stays NaN) without np.clip's per-call
+    argument checks, which cost more than the clipping on the short arrays of one line."""
+    return np.minimum(np.maximum(x, lo), hi)
+
+
 def _covers(line: NetLine, a: np.ndarray, b: np.ndarray, margin: float,
             reach: float = 0.0) -> np.ndarray:
     """Index of the interval of ``line`` covering [a - margin, b + margin] (arrays), or -1.
@@ -218,7 +224,7 @@ def _covers(line: NetLine, a: np.ndarray, b: np.ndarray, margin: float,
     if len(line.starts) == 0:
         return np.full(a.shape, -1)
     k = np.searchsorted(line.starts - reach, a - margin, side="right") - 1
-    kk = np.clip(k, 0, len(line.starts) - 1)
+    kk = _clamp(k, 0, len(line.starts) - 1)
     ok = (k >= 0) & (line.ends[kk] + reach >= b + margin)
     return np.where(ok, kk, -1)
 
@@ -232,7 +238,7 @@ def _evaluate(curve: NurbsCurve, w: np.ndarray, tangent: bool = False):
     the derivatives ``dP/dw`` (n, 3), mm/px.
     """
     lo, hi = curve.domain
-    wc = np.clip(w, lo, hi)
+    wc = _clamp(w, lo, hi)
     if not tangent and np.array_equal(wc, w):  # inside the domain: no tangent needed
         return curve.evaluate(w)
     P, D = curve.derivatives(wc, 1)
@@ -248,7 +254,7 @@ def _evaluate_all(curves, params) -> list[np.ndarray]:
     groups: dict = {}
     for i, (c, w) in enumerate(zip(curves, params, strict=True)):
         lo, hi = c.domain
-        if np.array_equal(np.clip(w, lo, hi), w):
+        if np.array_equal(_clamp(w, lo, hi), w):
             groups.setdefault(c.degree, []).append(i)
         else:
             out[i] = _evaluate(c, w)
@@ -604,7 +610,7 @@ def _span_values(ln: NetLine, w: np.ndarray, nodes: np.ndarray, reach: float,
     other family's crossings) that one of its intervals covers whole (a side present, as in
     :func:`complete_cells`); NaN on the other spans."""
     k = _covers(ln, nodes[:-1], nodes[1:], margin, reach)  # interval of each span, or -1
-    span = np.clip(np.searchsorted(nodes, w, side="right") - 1, 0, len(nodes) - 2)
+    span = _clamp(np.searchsorted(nodes, w, side="right") - 1, 0, len(nodes) - 2)
     return _by_interval(ln, w, k[span])
 
 
