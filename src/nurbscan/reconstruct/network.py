@@ -267,14 +267,13 @@ def _evaluate_all(curves, params) -> list[np.ndarray]:
 
 def _by_interval(ln: NetLine, w: np.ndarray, k: np.ndarray, tangent: bool = False):
     """Points (n, 3) of the line at ``w`` (n,) on the curves of the intervals ``k`` (n,),
-    NaN where ``k`` is -1 (:func:`_evaluate`, bit for bit: without ``tangent`` the intervals
-    together, :func:`_evaluate_all`); with ``tangent`` also the derivatives."""
+    NaN where ``k`` is -1 (:func:`_evaluate`, one call per interval); with ``tangent`` also
+    the derivatives."""
     out = np.full((len(w), 3), np.nan)
     sels = [k == s for s in np.unique(k[k >= 0])]
     if not tangent:
-        pts = _evaluate_all([ln.curves[k[sel][0]] for sel in sels], [w[sel] for sel in sels])
-        for sel, P in zip(sels, pts, strict=True):
-            out[sel] = P
+        for sel in sels:
+            out[sel] = _evaluate(ln.curves[k[sel][0]], w[sel])
         return out
     der = np.full((len(w), 3), np.nan)
     for sel in sels:
@@ -591,29 +590,64 @@ def _curve_function(ln: NetLine, k: int) -> _CurveFunction:
     return _CurveFunction(ln, k)
 
 
+class _GapFunction:
+    """A line's curves on the spans between the rectangle's crossings ``across`` that one of
+    its intervals covers whole (as :func:`complete_cells` judges it), elsewhere the cubic
+    interpolant (not-a-knot) of the crossings' points ``pts`` along it (:func:`_fill_gaps`);
+    ``w`` -> (n, 3)."""
+
+    def __init__(self, ln: NetLine, across: np.ndarray, pts: np.ndarray, reach: float,
+                 margin: float):
+        self.ln, self.across, self.reach, self.margin = ln, across, reach, margin
+        self.fill = make_interp_spline(across, pts, k=min(3, len(across) - 1))
+
+    def intervals(self, w: np.ndarray) -> np.ndarray:
+        """The interval of the line's curve at each ``w`` (n,), -1 on the spans it misses."""
+        k = _covers(self.ln, self.across[:-1], self.across[1:], self.margin, self.reach)
+        span = _clamp(np.searchsorted(self.across, w, side="right") - 1, 0,
+                      len(self.across) - 2)
+        return k[span]
+
+    def filled(self, w: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """``P`` (n, 3) with the interpolant where it is NaN (the spans the line misses)."""
+        bad = np.isnan(P[:, 0])
+        P[bad] = self.fill(w[bad])
+        return P
+
+    def __call__(self, w) -> np.ndarray:
+        w = np.atleast_1d(np.asarray(w, float))
+        return self.filled(w, _by_interval(self.ln, w, self.intervals(w)))
+
+
 def _sample(funs, w: np.ndarray) -> np.ndarray:
     """Points (len(funs), n, 3) of the line functions ``funs`` at ``w`` (n,): ``f(w)`` for
-    each, bit for bit; the curves that ``w`` stays inside of (:func:`_evaluate` without the
-    tangent extension) in one :func:`~nurbscan.nurbs.curve.evaluate_pieces` call per degree,
-    the other functions one at a time."""
+    each, bit for bit; the curves of :class:`_CurveFunction` and :class:`_GapFunction` (each
+    curve interval at the samples on it) together, in one
+    :func:`~nurbscan.nurbs.curve.evaluate_pieces` call per degree for the curves that their
+    samples stay inside of (:func:`_evaluate_all`), the other functions one at a time."""
     w = np.atleast_1d(np.asarray(w, float))
     out = np.empty((len(funs), len(w), 3))
-    cur = [i for i, f in enumerate(funs) if isinstance(f, _CurveFunction)]
-    for i in set(range(len(funs))) - set(cur):
-        out[i] = funs[i](w)
-    if cur:
-        out[cur] = np.stack(_evaluate_all([funs[i].curve for i in cur], [w] * len(cur)))
+    jobs = []  # (function index, sample mask or None, curve)
+    gaps = {}
+    for i, f in enumerate(funs):
+        if isinstance(f, _CurveFunction):
+            jobs.append((i, None, f.curve))
+        elif isinstance(f, _GapFunction):
+            k = f.intervals(w)
+            out[i] = np.nan
+            gaps[i] = f
+            jobs += [(i, k == s, f.ln.curves[s]) for s in np.unique(k[k >= 0])]
+        else:
+            out[i] = f(w)
+    pts = _evaluate_all([c for _, _, c in jobs], [w if m is None else w[m] for _, m, _ in jobs])
+    for (i, m, _), P in zip(jobs, pts, strict=True):
+        if m is None:
+            out[i] = P
+        else:
+            out[i, m] = P
+    for i, f in gaps.items():
+        out[i] = f.filled(w, out[i])
     return out
-
-
-def _span_values(ln: NetLine, w: np.ndarray, nodes: np.ndarray, reach: float,
-                 margin: float = 1.0) -> np.ndarray:
-    """Points (n, 3) of the line at ``w`` on the spans between consecutive ``nodes`` (the
-    other family's crossings) that one of its intervals covers whole (a side present, as in
-    :func:`complete_cells`); NaN on the other spans."""
-    k = _covers(ln, nodes[:-1], nodes[1:], margin, reach)  # interval of each span, or -1
-    span = _clamp(np.searchsorted(nodes, w, side="right") - 1, 0, len(nodes) - 2)
-    return _by_interval(ln, w, k[span])
 
 
 def _fill_gaps(V, H, cu, cv, reach: float, margin: float = 1.0):
@@ -647,19 +681,8 @@ def _fill_gaps(V, H, cu, cv, reach: float, margin: float = 1.0):
     if np.isnan(X).any():
         raise ValueError("a crossing of the rectangle is covered by neither line")
 
-    def hybrid(ln, across, pts):
-        fill = make_interp_spline(across, pts, k=min(3, len(across) - 1))
-
-        def f(w):
-            w = np.atleast_1d(np.asarray(w, float))
-            P = _span_values(ln, w, across, reach, margin)
-            bad = np.isnan(P[:, 0])
-            P[bad] = fill(w[bad])
-            return P
-        return f
-
-    vfun = [hybrid(ln, cv, X[i]) for i, ln in enumerate(V)]
-    hfun = [hybrid(ln, cu, X[:, j]) for j, ln in enumerate(H)]
+    vfun = [_GapFunction(ln, cv, X[i], reach, margin) for i, ln in enumerate(V)]
+    hfun = [_GapFunction(ln, cu, X[:, j], reach, margin) for j, ln in enumerate(H)]
     return vfun, hfun
 
 
