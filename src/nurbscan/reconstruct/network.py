@@ -570,8 +570,15 @@ class Patch:
 
 
 def _interval(ln: NetLine, a: float, b: float, reach: float) -> int:
-    """Index of the interval of ``ln`` covering [a, b] (:func:`_covers`, no margin), or -1."""
-    return int(_covers(ln, np.array([a]), np.array([b]), 0.0, reach)[0])
+    """Index of the interval of ``ln`` covering [a, b] (:func:`_covers`, no margin), or -1:
+    the same comparisons on scalars (asked thousands of times per view)."""
+    if len(ln.starts) == 0:
+        return -1
+    k = int(np.searchsorted(ln.starts - reach, a, side="right")) - 1
+    if k < 0:
+        return -1
+    k = min(k, len(ln.starts) - 1)
+    return k if ln.ends[k] + reach >= b else -1
 
 
 class _CurveFunction:
