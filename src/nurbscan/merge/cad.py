@@ -213,12 +213,16 @@ def cad_set(model, rig=None, options: CadOptions | None = None, progress=None) -
     covered = _covered(P, N, owner, view, score, supported, opt)
     keep = supported & ~covered
     inconsistent = np.zeros(len(P), bool)
+    # each round re-examines only the cells whose neighbourhood changed (the same results)
+    last_cover, last_cut = (covered, supported), None
     for _ in range(opt.consistency_rounds if opt.consistent_mm is not None else 0):
-        cut = _inconsistent(P, N, view[owner], keep, witness & ~inconsistent, opt)
+        cut = _inconsistent(P, N, view[owner], keep, witness & ~inconsistent, opt, last_cut)
+        last_cut = (cut, keep, witness & ~inconsistent)
         if not cut.any():
             break
         inconsistent |= cut
-        covered = _covered(P, N, owner, view, score, supported & ~inconsistent, opt)
+        covered = _covered(P, N, owner, view, score, supported & ~inconsistent, opt, last_cover)
+        last_cover = (covered, supported & ~inconsistent)
         keep = supported & ~inconsistent & ~covered
     out, kept, at = [], [], 0
     for s, c in zip(gordon, cells, strict=True):
@@ -413,32 +417,56 @@ def _scores(model, rig, gordon, cells, P, N, owner, view, pitch, centres_of) -> 
     return cos - rms / pitch
 
 
-def _covered(P, N, owner, view, score, supported, opt: CadOptions) -> np.ndarray:
-    """Cells on which a supported cell of a better patch of another view lies."""
+def _changed(P: np.ndarray, rows: np.ndarray, gone: np.ndarray, reach: float) -> np.ndarray:
+    """Which of the cells ``rows`` (indices) lie within ``reach`` of a cell of ``gone``
+    (indices): the cells whose neighbours within ``reach`` a removal of ``gone`` changes."""
+    if len(gone) == 0 or len(rows) == 0:
+        return np.zeros(len(rows), bool)
+    d, _ = cKDTree(P[gone]).query(P[rows], distance_upper_bound=reach)
+    return np.isfinite(d)
+
+
+def _covered(P, N, owner, view, score, supported, opt: CadOptions,
+             previous: tuple | None = None) -> np.ndarray:
+    """Cells on which a supported cell of a better patch of another view lies.
+
+    ``previous`` = ``(out, supported)`` of a call with a superset of ``supported``: only the
+    cells within ``cover_mm`` of a cell no longer supported are examined again (the others'
+    neighbours are the same), with the same result as a call without it."""
     idx = np.flatnonzero(supported)
     out = np.zeros(len(P), bool)
     if len(idx) < 2:
         return out
     tree = cKDTree(P[idx])
     k = min(opt.neighbours, len(idx))
-    d, j = tree.query(P[idx], k=k, distance_upper_bound=opt.cover_mm)
+    rows = idx
+    if previous is not None and len(previous[1]) == len(P) and not (
+            supported & ~previous[1]).any():
+        again = _changed(P, idx, np.flatnonzero(previous[1] & ~supported), opt.cover_mm)
+        out[idx] = previous[0][idx]
+        rows = idx[again]
+    d, j = tree.query(P[rows], k=k, distance_upper_bound=opt.cover_mm)
     ok = np.isfinite(d)
     jj = idx[np.where(ok, j, 0)]
-    me = idx[:, None]
+    me = rows[:, None]
     other = ok & (owner[jj] != owner[me])
     agree = (N[jj] * N[me]).sum(-1) > 0.5
     # better: higher score, ties to the lower patch number
     s_me, s_o = score[owner[me]], score[owner[jj]]
     better = (s_o > s_me) | ((s_o == s_me) & (owner[jj] < owner[me]))
-    out[idx] = (other & agree & better).any(1)
+    out[rows] = (other & agree & better).any(1)
     return out
 
 
 def _inconsistent(P, N, pview, cells, supported, opt: CadOptions,
-                  chunk: int = 65536) -> np.ndarray:
+                  previous: tuple | None = None, chunk: int = 65536) -> np.ndarray:
     """Which of ``cells`` (bool) have supported cells of other views over them (within
     ``cell_mm`` along the surface and ``4 max(cell_mm, consistent_mm)`` in space, normals
-    within 60 degrees) but none within ``consistent_mm`` along the cell's normal (step 5)."""
+    within 60 degrees) but none within ``consistent_mm`` along the cell's normal (step 5).
+
+    ``previous`` = ``(out, cells, supported)`` of a call with a superset of ``supported``:
+    the cells examined then keep their result unless a cell no longer supported lies within
+    that reach of them (their neighbours are the same); the same result as without it."""
     idx = np.flatnonzero(supported)
     out = np.zeros(len(P), bool)
     if len(idx) < 2:
@@ -447,6 +475,12 @@ def _inconsistent(P, N, pview, cells, supported, opt: CadOptions,
     reach = 4.0 * max(opt.cell_mm, opt.consistent_mm)
     k = min(6 * opt.neighbours, len(idx))
     todo = np.flatnonzero(cells)
+    if previous is not None and len(previous[2]) == len(P) and not (
+            supported & ~previous[2]).any():
+        seen = previous[1][todo]
+        again = _changed(P, todo, np.flatnonzero(previous[2] & ~supported), reach)
+        out[todo[seen]] = previous[0][todo[seen]]
+        todo = todo[~seen | again]
     for at in range(0, len(todo), chunk):
         me = todo[at:at + chunk]
         d, j = tree.query(P[me], k=k, distance_upper_bound=reach)
