@@ -155,19 +155,33 @@ def _window_fit(along: np.ndarray, across: np.ndarray, line: np.ndarray, offs: n
     stop = np.cumsum(counts)
     first = (stop - counts)[line[i]]
     last = stop[line[i]] - 1
-    j = i[:, None] + offs[None, :]
-    inside = (j >= first[:, None]) & (j <= last[:, None])
-    j = np.clip(j, 0, n - 1)
-    if use is not None:
-        inside &= use[j]
-    dt = along[j] - along[i][:, None]
-    if reach is not None:
-        inside &= np.abs(dt) <= reach
-    wts = inside.astype(np.float64)
-    if weight is not None:
-        wts *= weight[j]
-    c0, c1, sw = fit_lines(dt, across[j], wts)
+    q = len(i)
+    c0, c1, sw = np.empty(q), np.empty(q), np.empty(q)
+    wts = np.empty((q, len(offs)))
+    # in blocks of points (their (B, K) temporaries stay in the cache; each point's fit is
+    # its own row: the same numbers)
+    for b in range(0, q, _BLOCK):
+        r = slice(b, b + _BLOCK)
+        ib = i[r]
+        j = ib[:, None] + offs[None, :]
+        inside = (j >= first[r, None]) & (j <= last[r, None])
+        np.clip(j, 0, n - 1, out=j)
+        if use is not None:
+            inside &= use[j]
+        dt = along[j]
+        dt -= along[ib][:, None]
+        if reach is not None:
+            inside &= np.abs(dt) <= reach
+        w = wts[r]
+        w[...] = inside
+        if weight is not None:
+            w *= weight[j]
+        c0[r], c1[r], sw[r] = fit_lines(dt, across[j], w)
     return c0, c1, sw, wts
+
+
+#: Points per block of :func:`_window_fit`.
+_BLOCK = 4096
 
 
 def chain_slope(along: np.ndarray, across: np.ndarray, line: np.ndarray, reach: int = 4
