@@ -17,6 +17,7 @@ for horizontal ones); chains shorter than ``min_length`` points are dropped.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from .decode import small_ints
@@ -155,33 +156,74 @@ def _window_fit(along: np.ndarray, across: np.ndarray, line: np.ndarray, offs: n
     stop = np.cumsum(counts)
     first = (stop - counts)[line[i]]
     last = stop[line[i]] - 1
-    q = len(i)
+    q, k = len(i), len(offs)
     c0, c1, sw = np.empty(q), np.empty(q), np.empty(q)
-    wts = np.empty((q, len(offs)))
-    # in blocks of points (their (B, K) temporaries stay in the cache; each point's fit is
-    # its own row: the same numbers)
+    wts = np.empty((q, k))
+    # in blocks of points, offset by offset ((K, B) rows of the block's length: numpy's inner
+    # loops run over the points; the temporaries stay in the cache), each point's fit its
+    # own: the same numbers as fit_lines over (Q, K) rows
     for b in range(0, q, _BLOCK):
         r = slice(b, b + _BLOCK)
         ib = i[r]
-        j = ib[:, None] + offs[None, :]
-        inside = (j >= first[r, None]) & (j <= last[r, None])
+        j = offs[:, None] + ib[None, :]
+        inside = (j >= first[None, r]) & (j <= last[None, r])
         np.clip(j, 0, n - 1, out=j)
         if use is not None:
             inside &= use[j]
         dt = along[j]
-        dt -= along[ib][:, None]
+        dt -= along[ib][None, :]
         if reach is not None:
             inside &= np.abs(dt) <= reach
-        w = wts[r]
-        w[...] = inside
+        w = inside.astype(np.float64)
         if weight is not None:
             w *= weight[j]
-        c0[r], c1[r], sw[r] = fit_lines(dt, across[j], w)
+        c0[r], c1[r], sw[r] = _fit_lines_t(dt, across[j], w)
+        wts[r] = cv2.transpose(w)
     return c0, c1, sw, wts
 
 
 #: Points per block of :func:`_window_fit`.
 _BLOCK = 4096
+
+
+def _fit_lines_t(t: np.ndarray, v: np.ndarray, wts: np.ndarray):
+    """:func:`fit_lines` of the (G, K) arrays ``t.T``, ``v.T``, ``wts.T`` (C-contiguous) from
+    their (K, G) transposes, with the same numbers (:func:`_row_sums`)."""
+    wt = wts * t
+    sw = _row_sums(wts)
+    st = _row_sums(wt)
+    stt = _row_sums(wt * t)
+    sv = _row_sums(wts * v)
+    stv = _row_sums(wt * v)
+    del wt
+    det = sw * stt - st * st
+    with np.errstate(all="ignore"):
+        c1 = (sw * stv - st * sv) / det
+        c0 = (sv - c1 * st) / sw
+    return c0, c1, sw
+
+
+def _row_sums(a: np.ndarray) -> np.ndarray:
+    """``np.sum(a.T, axis=1)`` of a C-contiguous copy of ``a.T`` for a (K, G) float64 array,
+    K <= 128, in numpy's order (its reduction along the contiguous axis: 0 plus the
+    pairwise sum, which adds up to 8 elements one by one and more in 8 running sums, then
+    added as ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7)) and the rest one by one), on
+    rows of G: numpy's inner loops run over G instead of K."""
+    k = len(a)
+    if k < 8:
+        res = a[0] + 0.0
+        for c in range(1, k):
+            res += a[c]
+        return res
+    r = a[:8].copy()
+    for c in range(8, k - k % 8, 8):
+        r += a[c:c + 8]
+    p = r[0::2] + r[1::2]  # r0 + r1, r2 + r3, r4 + r5, r6 + r7
+    p = p[0::2] + p[1::2]
+    res = p[0] + p[1]
+    for c in range(k - k % 8, k):
+        res += a[c]
+    return res + 0.0
 
 
 def chain_slope(along: np.ndarray, across: np.ndarray, line: np.ndarray, reach: int = 4
