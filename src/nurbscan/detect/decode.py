@@ -94,19 +94,38 @@ def classify_colours(samples: np.ndarray, rgb: np.ndarray, iterations: int = 5,
     if len(train) > 20000:
         train = train[:: len(train) // 20000 + 1]
     q = len(centres)
-    for _ in range(iterations if len(train) >= 10 * q else 0):
-        d = ((train[:, None, :] - centres[None]) ** 2).sum(-1)
-        a = d.argmin(1)
+    its = iterations if len(train) >= 10 * q else 0
+    train_t = np.ascontiguousarray(train.T) if its else None
+    for _ in range(its):
+        a = _sq_distances(train_t, centres).argmin(0)
         cnt = np.bincount(a, minlength=q)
         for c in range(3):
             sums = np.bincount(a, weights=train[:, c], minlength=q)
             centres[:, c] = np.where(cnt > 5, sums / np.maximum(cnt, 1), centres[:, c])
-    d = np.sqrt(((chroma[:, None, :] - centres[None]) ** 2).sum(-1))
+    d = np.sqrt(cv2.transpose(_sq_distances(np.ascontiguousarray(chroma.T), centres))
+                if len(chroma) else ((chroma[:, None, :] - centres[None]) ** 2).sum(-1))
     o = np.argsort(d, axis=1)
     d1 = np.take_along_axis(d, o[:, :1], 1)[:, 0]
     d2 = np.take_along_axis(d, o[:, 1:2], 1)[:, 0]
     codes = np.where(ok & (d1 < ambiguity * d2), o[:, 0], -1)
     return codes.astype(np.int64), centres
+
+
+def _sq_distances(points_t: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """``((p[:, None, :] - centres[None]) ** 2).sum(-1)`` of the points ``p`` (N, 3), from
+    ``points_t`` = ``p.T`` (3, N), transposed: (q, N), the same numbers (numpy's sum of 3
+    along the contiguous axis adds them one by one to 0), centre by centre on rows of the
+    points' length."""
+    out = np.empty((len(centres), points_t.shape[1]))
+    for k, ck in enumerate(centres):
+        a = out[k]
+        np.subtract(points_t[0], ck[0], out=a)
+        a *= a
+        for c in (1, 2):
+            b = points_t[c] - ck[c]
+            b *= b
+            a += b
+    return out
 
 
 def small_ints(values: np.ndarray, bound: int | None = None) -> np.ndarray:
