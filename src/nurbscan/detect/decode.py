@@ -282,11 +282,11 @@ def oblique_runs(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.n
         if not len(active):
             break
         st = steps[c0:c0 + 8]
-        # the rays in blocks of 8192 (their temporaries stay in the cache)
-        blocks = [active[b:b + 8192] for b in range(0, len(active), 8192)]
+        # the rays in blocks of 16384 (their temporaries stay in the cache)
+        blocks = [active[b:b + 16384] for b in range(0, len(active), 16384)]
         met = [_ray_hits(grid, none, st, x, y, ux, uy, line, ab, gw, offset, itype)
                for ab in blocks]
-        ri = np.concatenate([m[0] + 8192 * b for b, m in enumerate(met)])
+        ri = np.concatenate([m[0] + 16384 * b for b, m in enumerate(met)])
         best = np.concatenate([m[1] for m in met])
         pbest = np.concatenate([m[2] for m in met])
         del met, blocks

@@ -183,7 +183,7 @@ def _window_fit(along: np.ndarray, across: np.ndarray, line: np.ndarray, offs: n
 
 
 #: Points per block of :func:`_window_fit`.
-_BLOCK = 4096
+_BLOCK = 8192
 
 
 def _fit_lines_t(t: np.ndarray, v: np.ndarray, wts: np.ndarray):
