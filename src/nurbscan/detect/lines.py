@@ -127,12 +127,17 @@ def fit_lines(t: np.ndarray, v: np.ndarray, wts: np.ndarray):
     Returns c0, c1 (G,) and the weight sums (G,); c0, c1 are finite only where at least two
     distinct ``t`` carry weight.
     """
+    return _line_fit(t, v, wts, lambda a: a.sum(1))
+
+
+def _line_fit(t: np.ndarray, v: np.ndarray, wts: np.ndarray, total):
+    """:func:`fit_lines` with the sums of its products taken by ``total`` (array -> sums)."""
     wt = wts * t  # (wts * t * t is evaluated as (wts * t) * t: the same numbers)
-    sw = wts.sum(1)
-    st = wt.sum(1)
-    stt = (wt * t).sum(1)
-    sv = (wts * v).sum(1)
-    stv = (wt * v).sum(1)
+    sw = total(wts)
+    st = total(wt)
+    stt = total(wt * t)
+    sv = total(wts * v)
+    stv = total(wt * v)
     del wt
     det = sw * stt - st * st
     with np.errstate(all="ignore"):
@@ -189,18 +194,7 @@ _BLOCK = 8192
 def _fit_lines_t(t: np.ndarray, v: np.ndarray, wts: np.ndarray):
     """:func:`fit_lines` of the (G, K) arrays ``t.T``, ``v.T``, ``wts.T`` (C-contiguous) from
     their (K, G) transposes, with the same numbers (:func:`_row_sums`)."""
-    wt = wts * t
-    sw = _row_sums(wts)
-    st = _row_sums(wt)
-    stt = _row_sums(wt * t)
-    sv = _row_sums(wts * v)
-    stv = _row_sums(wt * v)
-    del wt
-    det = sw * stt - st * st
-    with np.errstate(all="ignore"):
-        c1 = (sw * stv - st * sv) / det
-        c0 = (sv - c1 * st) / sw
-    return c0, c1, sw
+    return _line_fit(t, v, wts, _row_sums)
 
 
 def _row_sums(a: np.ndarray) -> np.ndarray:
