@@ -2000,3 +2000,52 @@ def test_noise_level_over_the_valid_window_is_the_whole_images():
         for m in (v, None):
             a, b = whole(s, m, step), noise_level(s, m, step)
             assert a == b or (np.isnan(a) and np.isnan(b)), (h, w, step)
+
+
+def test_row_sums_and_mask_picks_are_numpys_bit_for_bit():
+    """The detector's reproductions of numpy's own arithmetic order give numpy's bits:
+    ``lines._row_sums`` (numpy's pairwise sum along a row, on the transposed array),
+    ``lines._window_fit`` (the window fits computed offset by offset, against ``fit_lines``
+    over the (M, K) windows), ``decode._sq_distances`` (a sum of 3) and ``_pick.pick`` (a
+    bool mask's selection by its indices); if numpy changes its summation order, this says
+    so."""
+    from nurbscan.detect._pick import pick
+    from nurbscan.detect.decode import _sq_distances
+    from nurbscan.detect.lines import _row_sums, _window_fit, fit_lines
+
+    rng = np.random.default_rng(4)
+    for k in [*range(1, 20), 24, 40, 72, 128]:
+        a = rng.normal(size=(k, 500)) * rng.uniform(0.01, 1e4, size=(k, 500))
+        a[:, :20] = -0.0
+        a[:, 20:60] = rng.choice([0.0, -0.0, 1.0, -1.0], size=(k, 40))
+        assert _row_sums(a).tobytes() == np.ascontiguousarray(a.T).sum(1).tobytes(), k
+    # the window fits, against fit_lines over the windows of the old formulation
+    n = 3000
+    line = np.sort(rng.integers(0, 40, n))
+    along, across = np.cumsum(rng.uniform(0.5, 1.5, n)), rng.normal(size=n)
+    use, weight = rng.random(n) < 0.8, rng.uniform(0.1, 2.0, n)
+    offs = np.r_[np.arange(-5, 0), np.arange(1, 6)]
+    at = np.sort(rng.choice(n, 700, replace=False))
+    for kw in ({}, {"use": use, "at": at}, {"weight": weight, "reach": 3.5}):
+        i = kw.get("at", np.arange(n))
+        counts = np.bincount(line)
+        stop = np.cumsum(counts)
+        j = i[:, None] + offs[None, :]
+        inside = (j >= (stop - counts)[line[i]][:, None]) & (j <= stop[line[i]][:, None] - 1)
+        j = np.clip(j, 0, n - 1)
+        if "use" in kw:
+            inside &= use[j]
+        dt = along[j] - along[i][:, None]
+        if "reach" in kw:
+            inside &= np.abs(dt) <= kw["reach"]
+        wts = inside.astype(np.float64) * (weight[j] if "weight" in kw else 1.0)
+        want = (*fit_lines(dt, across[j], wts), wts)
+        got = _window_fit(along, across, line, offs, **kw)
+        assert all(g.tobytes() == w.tobytes() for g, w in zip(got, want, strict=True))
+    p, c = rng.random((1000, 3)), rng.random((5, 3))
+    want = ((p[:, None, :] - c[None]) ** 2).sum(-1)
+    assert _sq_distances(np.ascontiguousarray(p.T), c).T.tobytes() == want.tobytes()
+    m = rng.random(1000) < 0.4
+    v2 = rng.random((1000, 2)).astype(np.float32)
+    got = pick(m, p[:, 0], v2)
+    assert got[0].tobytes() == p[:, 0][m].tobytes() and got[1].tobytes() == v2[m].tobytes()

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._pick import pick
 from .decode import small_ints
 from .edges import EdgePoints, detect_edge_points
 from .lines import fit_lines, join_collinear, neighbour_fit, trace_lines
@@ -320,4 +321,4 @@ def extend_lines(x, y, strength, line, direction, edge, extra, shape, min_streng
                            both_sides=False, at=at)
     keep = ~new
     keep[at] = ok & (np.abs(np.where(vk, x, y)[at] - c0) <= tol)
-    return x[keep], y[keep], strength[keep], line[keep]
+    return pick(keep, x, y, strength, line)

@@ -22,6 +22,7 @@ camera's colour crosstalk); ambiguous samples (nearest / second-nearest distance
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 
@@ -93,19 +94,38 @@ def classify_colours(samples: np.ndarray, rgb: np.ndarray, iterations: int = 5,
     if len(train) > 20000:
         train = train[:: len(train) // 20000 + 1]
     q = len(centres)
-    for _ in range(iterations if len(train) >= 10 * q else 0):
-        d = ((train[:, None, :] - centres[None]) ** 2).sum(-1)
-        a = d.argmin(1)
+    its = iterations if len(train) >= 10 * q else 0
+    train_t = np.ascontiguousarray(train.T) if its else None
+    for _ in range(its):
+        a = _sq_distances(train_t, centres).argmin(0)
         cnt = np.bincount(a, minlength=q)
         for c in range(3):
             sums = np.bincount(a, weights=train[:, c], minlength=q)
             centres[:, c] = np.where(cnt > 5, sums / np.maximum(cnt, 1), centres[:, c])
-    d = np.sqrt(((chroma[:, None, :] - centres[None]) ** 2).sum(-1))
+    d = np.sqrt(cv2.transpose(_sq_distances(np.ascontiguousarray(chroma.T), centres))
+                if len(chroma) else ((chroma[:, None, :] - centres[None]) ** 2).sum(-1))
     o = np.argsort(d, axis=1)
     d1 = np.take_along_axis(d, o[:, :1], 1)[:, 0]
     d2 = np.take_along_axis(d, o[:, 1:2], 1)[:, 0]
     codes = np.where(ok & (d1 < ambiguity * d2), o[:, 0], -1)
     return codes.astype(np.int64), centres
+
+
+def _sq_distances(points_t: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """``((p[:, None, :] - centres[None]) ** 2).sum(-1)`` of the points ``p`` (N, 3), from
+    ``points_t`` = ``p.T`` (3, N), transposed: (q, N), the same numbers (numpy's sum of 3
+    along the contiguous axis adds them one by one to 0), centre by centre on rows of the
+    points' length."""
+    out = np.empty((len(centres), points_t.shape[1]))
+    for k, ck in enumerate(centres):
+        a = out[k]
+        np.subtract(points_t[0], ck[0], out=a)
+        a *= a
+        for c in (1, 2):
+            b = points_t[c] - ck[c]
+            b *= b
+            a += b
+    return out
 
 
 def small_ints(values: np.ndarray, bound: int | None = None) -> np.ndarray:
@@ -238,14 +258,21 @@ def oblique_runs(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.n
     none = np.iinfo(gtype).max if gtype == np.uint16 else -1
     grid = np.full((y1 - y0, gw), none, gtype)
     idx = np.arange(n, dtype=gtype)
+    # (flat raster indices from the clamped rows and columns, each computed once)
+    rows = {d: (np.clip(gy + d, 0, h + 1) - y0) * gw for d in (-1, 0, 1)}
+    cols = {d: np.clip(gx + d, 0, w + 1) - x0 for d in (-1, 0, 1)}
+    flat_grid = grid.reshape(-1)
     for dy, dx in ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)):
-        grid[np.clip(gy + dy, 0, h + 1) - y0, np.clip(gx + dx, 0, w + 1) - x0] = idx
-    grid[gy - y0, gx - x0] = idx
+        flat_grid[rows[dy] + cols[dx]] = idx
+    flat_grid[(gy - y0) * gw + (gx - x0)] = idx
+    del rows, cols, flat_grid
     grid[:max(1 - y0, 0), :] = none
     grid[max(h + 1 - y0, 0):, :] = none
     grid[:, :max(1 - x0, 0)] = none
     grid[:, max(w + 1 - x0, 0):] = none
     grid = grid.ravel()
+    # the flat raster pixel of the image's row r and column c: r gw + c + offset
+    offset = (1 - y0) * gw + (1 - x0)
     itype = np.int32 if grid.size < 2**31 else np.int64
     succ = np.full(n, -1, np.int64)
     perp_of = np.full(n, np.inf)
@@ -255,48 +282,14 @@ def oblique_runs(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.n
         if not len(active):
             break
         st = steps[c0:c0 + 8]
-        nc = len(st)
-        xa, ya, uxa, uya = x[active], y[active], ux[active], uy[active]
-        # the samples' raster pixels, flat: rounded, then offset and scaled in float (exact:
-        # whole numbers), one cast
-        sy = st * uya[:, None]
-        sy += ya[:, None]
-        np.rint(sy, out=sy)
-        sy += 1 - y0
-        sy *= gw
-        sx = st * uxa[:, None]
-        sx += xa[:, None]
-        np.rint(sx, out=sx)
-        sy += sx
-        del sx
-        sy += 1 - x0
-        flat = sy.astype(itype)
-        del sy
-        j = np.take(grid, flat).ravel()  # the points met, ray by ray in step order
-        hit = np.flatnonzero(j != none)
-        jj = j[hit].astype(np.int64)
-        ri = hit // nc
-        other = line[jj] != line[active[ri]]  # (a point does not meet its own chain)
-        ri, jj = ri[other], jj[other]
-        rx, ry = x[jj] - xa[ri], y[jj] - ya[ri]
-        ur0, ur1 = uxa[ri], uya[ri]
-        s = rx * ur0 + ry * ur1
-        pp = np.abs(rx * ur1 - ry * ur0)
-        ok = (s > 0.5) & (pp <= 1.5)
-        ri, jj = ri[ok], jj[ok]
-        first = np.r_[True, ri[1:] != ri[:-1]] if len(ri) else np.zeros(0, bool)
-        ri, jj = ri[first], jj[first]  # the first point met by each ray
-        # of it and its chain neighbours, the nearest to the ray (the raster's pixels around
-        # a point let the ray meet an edge up to three points early or late)
-        cand = jj[:, None] + np.arange(-3, 4)
-        cand = np.clip(cand, 0, n - 1)
-        same = line[cand] == line[jj][:, None]
-        rx = x[cand] - xa[ri][:, None]
-        ry = y[cand] - ya[ri][:, None]
-        pp = np.where(same, np.abs(rx * uya[ri][:, None] - ry * uxa[ri][:, None]), np.inf)
-        k = np.argmin(pp, axis=1)
-        best = cand[np.arange(len(ri)), k]
-        pbest = pp[np.arange(len(ri)), k]
+        # the rays in blocks of 16384 (their temporaries stay in the cache)
+        blocks = [active[b:b + 16384] for b in range(0, len(active), 16384)]
+        met = [_ray_hits(grid, none, st, x, y, ux, uy, line, ab, gw, offset, itype)
+               for ab in blocks]
+        ri = np.concatenate([m[0] + 16384 * b for b, m in enumerate(met)])
+        best = np.concatenate([m[1] for m in met])
+        pbest = np.concatenate([m[2] for m in met])
+        del met, blocks
         good = pbest <= tol
         succ[active[ri[good]]] = best[good]
         perp_of[active[ri[good]]] = pbest[good]
@@ -315,6 +308,59 @@ def oblique_runs(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.n
     mu /= np.maximum(np.hypot(mu[:, 0], mu[:, 1]), 1e-12)[:, None]
     along = x * mu[run, 0] + y * mu[run, 1]
     return run.astype(np.int64), along
+
+
+def _ray_hits(grid, none, st, x, y, ux, uy, line, ray, gw, offset, itype):
+    """The links of :func:`oblique_runs`' rays from the points ``ray``, sampled at the steps
+    ``st`` (``grid`` is the flat raster, ``none`` where no point is; ``x``, ``y``, ``ux``,
+    ``uy``, ``line`` of all points): the rays (their positions in ``ray``) that meet a
+    point of another chain, the point linked to and its distance from the ray."""
+    n = len(x)
+    xa, ya, uxa, uya = x[ray], y[ray], ux[ray], uy[ray]
+    # the samples' raster pixels, flat: rounded, then scaled and offset in float (exact:
+    # whole numbers), one cast; step by step (rows of the rays' length: numpy's inner loops
+    # run over the rays, not over the steps)
+    sy = st[:, None] * uya
+    sy += ya
+    np.rint(sy, out=sy)
+    sy *= gw
+    sx = st[:, None] * uxa
+    sx += xa
+    np.rint(sx, out=sx)
+    sy += sx
+    del sx
+    sy += offset
+    j = np.take(grid, sy.astype(itype))  # the points met, (step, ray)
+    del sy
+    # a sample meeting the point its ray's previous sample met is left out (its tests are
+    # that one's); then ray by ray in step order (cv2.transpose: the copies in a tenth of
+    # numpy's time)
+    met = j != none
+    met[1:] &= j[1:] != j[:-1]
+    hit = np.flatnonzero(cv2.transpose(met.view(np.uint8)).view(bool))
+    jj = cv2.transpose(j).ravel()[hit].astype(np.int64)
+    nc = len(st)
+    ri = hit >> 3 if nc == 8 else hit // nc
+    other = line[jj] != line[ray][ri]  # (a point does not meet its own chain)
+    ri, jj = ri[other], jj[other]
+    rx, ry = x[jj] - xa[ri], y[jj] - ya[ri]
+    ur0, ur1 = uxa[ri], uya[ri]
+    s = rx * ur0 + ry * ur1
+    pp = np.abs(rx * ur1 - ry * ur0)
+    ok = (s > 0.5) & (pp <= 1.5)
+    ri, jj = ri[ok], jj[ok]
+    first = np.r_[True, ri[1:] != ri[:-1]] if len(ri) else np.zeros(0, bool)
+    ri, jj = ri[first], jj[first]  # the first point met by each ray
+    # of it and its chain neighbours, the nearest to the ray (the raster's pixels around
+    # a point let the ray meet an edge up to three points early or late)
+    cand = jj[:, None] + np.arange(-3, 4)
+    cand = np.clip(cand, 0, n - 1)
+    same = line[cand] == line[jj][:, None]
+    rx = x[cand] - xa[ri][:, None]
+    ry = y[cand] - ya[ri][:, None]
+    pp = np.where(same, np.abs(rx * uya[ri][:, None] - ry * uxa[ri][:, None]), np.inf)
+    k = np.argmin(pp, axis=1)
+    return ri, cand[np.arange(len(ri)), k], pp[np.arange(len(ri)), k]
 
 
 def window_votes(order: np.ndarray, start: np.ndarray, run: np.ndarray, across: np.ndarray,

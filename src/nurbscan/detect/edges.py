@@ -48,6 +48,7 @@ import cv2
 import numpy as np
 
 from ..errors import NurbscanError
+from ._pick import pick
 from ._threads import parallel_map
 from .oblique import _along_line, _tiles_to_pixels, across_operators, family_normals, fit_slopes
 
@@ -161,8 +162,9 @@ class EdgePoints:
 
     def take(self, index) -> EdgePoints:
         """The points selected by ``index`` (bool mask or integer indices)."""
-        return EdgePoints(**{k: (None if v is None else v[index])
-                             for k, v in self.__dict__.items()})
+        names = [k for k, v in self.__dict__.items() if v is not None]
+        got = dict(zip(names, pick(index, *(self.__dict__[k] for k in names)), strict=True))
+        return EdgePoints(**{k: got.get(k) for k in self.__dict__})
 
 def _at(img: np.ndarray, flat: np.ndarray) -> np.ndarray:
     """``img`` (H, W) at the flat pixel indices ``flat`` (the values of ``img[iy, ix]``, in

@@ -305,8 +305,8 @@ def _row_neighbours(label, line, cls, pattern, d: int, idx: np.ndarray) -> tuple
     lab = label[line[idx]]
     known = lab >= 0
     c = np.full(len(idx), np.nan)
-    c[known] = pattern.edge_coordinate(("vertical", "horizontal")[d], lab[known],
-                                       cls[idx][known] % 2)
+    k = np.flatnonzero(known)  # (a gather by index: faster than by the mask)
+    c[k] = pattern.edge_coordinate(("vertical", "horizontal")[d], lab[k], cls[idx[k]] % 2)
     m = len(idx)
     p = np.arange(m)
     prv = np.maximum.accumulate(np.where(known, p, -1))
@@ -360,8 +360,8 @@ def interpolate_labels(label, x, y, cls, line, lcode, pattern, span: float,
     seq = np.asarray(pattern.sequence)
     rows = row_order(x, y, cls) if rows is None else rows
     ci = np.full(len(x), np.nan)  # interpolated coordinate of the unlabelled points
-    for d, idx, run, acr in rows:
-        known, c, prv, nxt = _row_neighbours(label, line, cls, pattern, d, idx)
+    neighbours = [_row_neighbours(label, line, cls, pattern, d, idx) for d, idx, _, _ in rows]
+    for (_, idx, run, acr), (known, c, prv, nxt) in zip(rows, neighbours, strict=True):
         m = len(idx)
         ok = ~known & (prv >= 0) & (nxt < m)
         j1, j2 = np.clip(prv, 0, m - 1), np.clip(nxt, 0, m - 1)
@@ -373,7 +373,7 @@ def interpolate_labels(label, x, y, cls, line, lcode, pattern, span: float,
     # every edge point of the row between the two labelled ones is one pattern edge: as many
     # points lie between them and this point as pattern edges (no edge missed or spurious on
     # either side)
-    consistent = row_consistent(label, line, cls, ci, pattern, rows)
+    consistent = row_consistent(label, line, cls, ci, pattern, rows, neighbours)
     vl, vv = [], []
     for d, edges in ((0, pattern.vertical_edges), (1, pattern.horizontal_edges)):
         k = np.nonzero(consistent & (cls // 2 == d))[0]
@@ -386,7 +386,8 @@ def interpolate_labels(label, x, y, cls, line, lcode, pattern, span: float,
                          min_agreement, accept_unknown=not require_colour)
 
 
-def row_consistent(label, line, cls, pred, pattern, rows: list) -> np.ndarray:
+def row_consistent(label, line, cls, pred, pattern, rows: list,
+                   neighbours: list | None = None) -> np.ndarray:
     """Whether each point's predicted edge agrees with the edge count of its row.
 
     ``pred`` (N,) is a predicted projector coordinate for points of unlabelled lines (NaN
@@ -397,11 +398,14 @@ def row_consistent(label, line, cls, pred, pattern, rows: list) -> np.ndarray:
     candidate (no edge missed or spurious between them, as in :func:`interpolate_labels`).
     A point passes when it has a labelled neighbour in its row on at least one side and
     every such side agrees: a surface squeezed between two others (a handle's side) holds
-    more edges than a plane through its neighbours allows. Returns bool (N,).
+    more edges than a plane through its neighbours allows. ``neighbours``: the rows'
+    :func:`_row_neighbours` for ``label``, when the caller has them. Returns bool (N,).
     """
     out = np.zeros(len(line), bool)
-    for d, idx, run, _ in rows:
-        known, c, prv, nxt = _row_neighbours(label, line, cls, pattern, d, idx)
+    if neighbours is None:
+        neighbours = [_row_neighbours(label, line, cls, pattern, d, idx)
+                      for d, idx, _, _ in rows]
+    for (d, idx, run, _), (known, c, prv, nxt) in zip(rows, neighbours, strict=True):
         m = len(idx)
         k = np.nonzero(~known & np.isfinite(pred[idx]))[0]
         edges = pattern.vertical_edges if d == 0 else pattern.horizontal_edges

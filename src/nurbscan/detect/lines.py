@@ -17,6 +17,7 @@ for horizontal ones); chains shorter than ``min_length`` points are dropped.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from .decode import small_ints
@@ -126,12 +127,17 @@ def fit_lines(t: np.ndarray, v: np.ndarray, wts: np.ndarray):
     Returns c0, c1 (G,) and the weight sums (G,); c0, c1 are finite only where at least two
     distinct ``t`` carry weight.
     """
+    return _line_fit(t, v, wts, lambda a: a.sum(1))
+
+
+def _line_fit(t: np.ndarray, v: np.ndarray, wts: np.ndarray, total):
+    """:func:`fit_lines` with the sums of its products taken by ``total`` (array -> sums)."""
     wt = wts * t  # (wts * t * t is evaluated as (wts * t) * t: the same numbers)
-    sw = wts.sum(1)
-    st = wt.sum(1)
-    stt = (wt * t).sum(1)
-    sv = (wts * v).sum(1)
-    stv = (wt * v).sum(1)
+    sw = total(wts)
+    st = total(wt)
+    stt = total(wt * t)
+    sv = total(wts * v)
+    stv = total(wt * v)
     del wt
     det = sw * stt - st * st
     with np.errstate(all="ignore"):
@@ -155,19 +161,63 @@ def _window_fit(along: np.ndarray, across: np.ndarray, line: np.ndarray, offs: n
     stop = np.cumsum(counts)
     first = (stop - counts)[line[i]]
     last = stop[line[i]] - 1
-    j = i[:, None] + offs[None, :]
-    inside = (j >= first[:, None]) & (j <= last[:, None])
-    j = np.clip(j, 0, n - 1)
-    if use is not None:
-        inside &= use[j]
-    dt = along[j] - along[i][:, None]
-    if reach is not None:
-        inside &= np.abs(dt) <= reach
-    wts = inside.astype(np.float64)
-    if weight is not None:
-        wts *= weight[j]
-    c0, c1, sw = fit_lines(dt, across[j], wts)
+    q, k = len(i), len(offs)
+    c0, c1, sw = np.empty(q), np.empty(q), np.empty(q)
+    wts = np.empty((q, k))
+    # in blocks of points, offset by offset ((K, B) rows of the block's length: numpy's inner
+    # loops run over the points; the temporaries stay in the cache), each point's fit its
+    # own: the same numbers as fit_lines over (Q, K) rows
+    for b in range(0, q, _BLOCK):
+        r = slice(b, b + _BLOCK)
+        ib = i[r]
+        j = offs[:, None] + ib[None, :]
+        inside = (j >= first[None, r]) & (j <= last[None, r])
+        np.clip(j, 0, n - 1, out=j)
+        if use is not None:
+            inside &= use[j]
+        dt = along[j]
+        dt -= along[ib][None, :]
+        if reach is not None:
+            inside &= np.abs(dt) <= reach
+        w = inside.astype(np.float64)
+        if weight is not None:
+            w *= weight[j]
+        c0[r], c1[r], sw[r] = _fit_lines_t(dt, across[j], w)
+        wts[r] = cv2.transpose(w)
     return c0, c1, sw, wts
+
+
+#: Points per block of :func:`_window_fit`.
+_BLOCK = 8192
+
+
+def _fit_lines_t(t: np.ndarray, v: np.ndarray, wts: np.ndarray):
+    """:func:`fit_lines` of the (G, K) arrays ``t.T``, ``v.T``, ``wts.T`` (C-contiguous) from
+    their (K, G) transposes, with the same numbers (:func:`_row_sums`)."""
+    return _line_fit(t, v, wts, _row_sums)
+
+
+def _row_sums(a: np.ndarray) -> np.ndarray:
+    """``np.sum(a.T, axis=1)`` of a C-contiguous copy of ``a.T`` for a (K, G) float64 array,
+    K <= 128, in numpy's order (its reduction along the contiguous axis: 0 plus the
+    pairwise sum, which adds up to 8 elements one by one and more in 8 running sums, then
+    added as ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7)) and the rest one by one), on
+    rows of G: numpy's inner loops run over G instead of K."""
+    k = len(a)
+    if k < 8:
+        res = a[0] + 0.0
+        for c in range(1, k):
+            res += a[c]
+        return res
+    r = a[:8].copy()
+    for c in range(8, k - k % 8, 8):
+        r += a[c:c + 8]
+    p = r[0::2] + r[1::2]  # r0 + r1, r2 + r3, r4 + r5, r6 + r7
+    p = p[0::2] + p[1::2]
+    res = p[0] + p[1]
+    for c in range(k - k % 8, k):
+        res += a[c]
+    return res + 0.0
 
 
 def chain_slope(along: np.ndarray, across: np.ndarray, line: np.ndarray, reach: int = 4

@@ -229,21 +229,24 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
         inv = (1.0 / np.maximum(den, floor),)
     del parts
     inv3 = inv if len(inv) == 3 else inv * 3
-    # signal = sum_c chans_c * (inv_c * wts_c), in two buffers (a weight of 1 multiplies
-    # exactly: left out); the two halves of the rows side by side (_threads)
+    # signal = sum_c chans_c * (inv_c * wts_c), the terms after the first in a buffer of
+    # 32 rows (it stays in the cache; a weight of 1 multiplies exactly: left out); the two
+    # halves of the rows side by side (_threads)
     signal = np.empty_like(chans[0])
-    term = np.empty_like(chans[0])
 
     def products(rows):
-        for c in range(3):
-            out = signal[rows] if c == 0 else term[rows]
-            if wts[c] == 1:
-                np.multiply(chans[c][rows], inv3[c][rows], out=out)
-            else:
-                np.multiply(inv3[c][rows], wts[c], out=out)
-                np.multiply(chans[c][rows], out, out=out)
-            if c:
-                signal[rows] += out
+        term = np.empty((32, signal.shape[1]), signal.dtype)
+        for r0 in range(rows.start, rows.stop, 32):
+            r = slice(r0, min(r0 + 32, rows.stop))
+            for c in range(3):
+                out = signal[r] if c == 0 else term[:r.stop - r.start]
+                if wts[c] == 1:
+                    np.multiply(chans[c][r], inv3[c][r], out=out)
+                else:
+                    np.multiply(inv3[c][r], wts[c], out=out)
+                    np.multiply(chans[c][r], out, out=out)
+                if c:
+                    signal[r] += out
 
     half = len(signal) // 2
     parallel_map(products, (slice(0, half), slice(half, len(signal))))

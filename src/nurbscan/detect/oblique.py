@@ -246,32 +246,45 @@ def line_taps(ix: np.ndarray, iy: np.ndarray, axis, slope: np.ndarray, step,
     h, w = shape
     step = np.asarray(step, np.float64)
     along_x = np.broadcast_to(np.asarray(axis), np.shape(ix)) == 0
-    off = np.asarray(slope, np.float64)[:, None, None] * step[None, :, None]
+    n, k = len(along_x), len(step)
+    if n == 0:
+        return np.zeros((0, k, 4), np.int64), np.zeros((0, k, 4))
+    # computed step by step ((K, ...) rows of the points' length: numpy's inner loops run
+    # over the points), then turned to (N, K, 4) by cv2.transpose (a copy of the bytes)
+    off = step[:, None] * np.asarray(slope, np.float64)[None, :]  # (K, N)
     f = np.floor(off)
     t = off - f
-    wts = np.empty(off.shape[:2] + (4,))
-    wts[..., :1] = ((-0.5 * t + 1.0) * t - 0.5) * t
-    wts[..., 1:2] = (1.5 * t - 2.5) * t * t + 1.0
-    wts[..., 2:3] = ((-1.5 * t + 2.0) * t + 0.5) * t
-    wts[..., 3:] = (0.5 * t - 0.5) * t * t
+    wts = np.empty((k, 4, n))
+    wts[:, 0] = ((-0.5 * t + 1.0) * t - 0.5) * t
+    wts[:, 1] = (1.5 * t - 2.5) * t * t + 1.0
+    wts[:, 2] = ((-1.5 * t + 2.0) * t + 0.5) * t
+    wts[:, 3] = (0.5 * t - 0.5) * t * t
     ix, iy = np.asarray(ix, np.int64), np.asarray(iy, np.int64)
     # the coordinate along the search axis (one per step) and the four across it, clamped
-    run = np.where(along_x, ix, iy)[:, None] + step.astype(np.int64)[None, :]  # (N, K)
-    np.clip(run, 0, np.where(along_x, w - 1, h - 1)[:, None], out=run)
-    across = f[..., 0].astype(np.int64)
-    across += np.where(along_x, iy, ix)[:, None]
-    top = np.where(along_x, h - 1, w - 1)[:, None]
-    if not across.size or (across.min() >= 1 and np.all(across <= top - 2)):
+    run = np.where(along_x, ix, iy)[None, :] + step.astype(np.int64)[:, None]  # (K, N)
+    np.clip(run, 0, np.where(along_x, w - 1, h - 1)[None, :], out=run)
+    across = f.astype(np.int64)
+    across += np.where(along_x, iy, ix)[None, :]
+    top = np.where(along_x, h - 1, w - 1)[None, :]
+    if across.min() >= 1 and np.all(across <= top - 2):
         # no tap across clamped (the usual case): the four are one pixel row (column) apart
         # in the flat image
-        stride = np.where(along_x, w, 1)[:, None, None] * np.arange(-1, 3)[None, None, :]
-        base = np.where(along_x[:, None], across * w + run, across + run * w)
-        return base[:, :, None] + stride, wts
-    across = across[:, :, None] + np.arange(-1, 3)[None, None, :]  # (N, K, 4)
-    np.clip(across, 0, top[:, :, None], out=across)
-    vx = along_x[:, None, None]
-    run = np.where(along_x[:, None], run, run * w)[:, :, None]
-    return np.where(vx, across * w, across) + run, wts
+        stride = np.arange(-1, 3)[:, None] * np.where(along_x, w, 1)[None, :]  # (4, N)
+        base = np.where(along_x[None, :], across * w + run, across + run * w)
+        idx = base[:, None, :] + stride[None, :, :]
+    else:
+        across = across[:, None, :] + np.arange(-1, 3)[None, :, None]  # (K, 4, N)
+        np.clip(across, 0, top[:, None, :], out=across)
+        run = np.where(along_x[None, :], run, run * w)[:, None, :]
+        idx = np.where(along_x[None, None, :], across * w, across) + run
+    return _to_points(idx), _to_points(wts)
+
+
+def _to_points(a: np.ndarray) -> np.ndarray:
+    """A (K, 4, N) array of 8-byte elements as (N, K, 4), C-contiguous (cv2.transpose of its
+    bytes)."""
+    k, _, n = a.shape
+    return cv2.transpose(a.reshape(4 * k, n).view(np.float64)).view(a.dtype).reshape(n, k, 4)
 
 
 def sample_taps(img: np.ndarray, idx: np.ndarray, wts: np.ndarray) -> np.ndarray:

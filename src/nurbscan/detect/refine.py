@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ._pick import pick
 from ._threads import parallel_map
 from .chains import SIGMA_ALONG, Chains, _along_across, chain_end_residual, chain_tails
 from .crossings import Reading
@@ -141,10 +142,11 @@ def select_points(chains: Chains, reading: Reading, labels: Labels, prep: Prepar
     new_id = np.cumsum(good) - 1
     keep_unpaired = KEEP_UNPAIRED and prep.fine
     keep = good[line] & (paired | (keep_unpaired & refine))
-    lines = Lines(x=px[keep], y=py[keep], strength=chains.strength[keep],
-                  line=new_id[line[keep]], band=label[good], direction=ldir[good],
-                  edge=ledge[good], votes=labels.votes[good], agreement=labels.agreement[good])
-    return Selection(lines, keep, paired[keep])
+    kx, ky, ks, kl, kp = pick(keep, px, py, chains.strength, line, paired)
+    lines = Lines(x=kx, y=ky, strength=ks, line=new_id[kl], band=label[good],
+                  direction=ldir[good], edge=ledge[good], votes=labels.votes[good],
+                  agreement=labels.agreement[good])
+    return Selection(lines, keep, kp)
 
 
 def refine_points(sel: Selection, chains: Chains, reading: Reading, prep: Prepared, pattern,
@@ -164,17 +166,19 @@ def refine_points(sel: Selection, chains: Chains, reading: Reading, prep: Prepar
         seq = np.asarray(pattern.sequence)
         chn = prep.normalised.lazy_planes()
         colour = np.asarray(pattern.rgb)[seq[lab[line]]] > 127
-        vk = cls[keep] < 2
+        kix, kiy, kcls, kacross, kslope = pick(keep, chains.ix, chains.iy, cls, chains.across,
+                                               chains.slope)
+        vk = kcls < 2
         normal = None
         if fine:
             # a point is judged clean along its chain's normal, so that edges tilted past 14
             # degrees are re-measured too (narrow bands keep the x / y rule: there the extra
             # points cost accuracy, 640 x 480 calibration views)
             normal = chain_normals(px, py, vk, line)
-        px, py, done = refine_by_channels(chn, chains.ix[keep], chains.iy[keep], cls[keep],
-                                          colour, px, py, sigma, SIGMA_ALONG, normal=normal,
-                                          across=chains.across[keep],
-                                          slope=chains.slope[keep])
+        px, py, done = refine_by_channels(chn, kix, kiy, kcls, colour, px, py, sigma,
+                                          SIGMA_ALONG, normal=normal, across=kacross,
+                                          slope=kslope)
+        del kix, kiy, kcls, kacross, kslope
         del chn
         # points with no clean channel (their crossing band shares the band's channels) are
         # placed on the straight line through their re-measured chain neighbours

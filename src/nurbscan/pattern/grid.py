@@ -301,7 +301,9 @@ class Pattern:
             e = (e == "falling").astype(np.int64)
         elif np.any((e != 0) & (e != 1)):
             raise NurbscanError("edge: must be 0 (rising) or 1 (falling)")
-        valid = (idx >= 0) & (idx < self.nbands(direction)) & (idx == np.round(idx))
+        valid = (idx >= 0) & (idx < self.nbands(direction))
+        if idx.dtype.kind not in "iu":  # (whole numbers as they are)
+            valid &= idx == np.round(idx)
         coord = self.offsets[a] + self.pitch * idx.astype(np.float64) - 0.5 + self.band * e
         return np.where(valid, coord, np.nan)
 
