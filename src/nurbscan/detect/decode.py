@@ -282,11 +282,11 @@ def oblique_runs(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.n
         if not len(active):
             break
         st = steps[c0:c0 + 8]
-        # the rays in blocks of 16384 (their temporaries stay in the cache)
-        blocks = [active[b:b + 16384] for b in range(0, len(active), 16384)]
+        # the rays in blocks (their temporaries stay in the cache)
+        blocks = [active[b:b + _RAY_BLOCK] for b in range(0, len(active), _RAY_BLOCK)]
         met = [_ray_hits(grid, none, st, x, y, ux, uy, line, ab, gw, offset, itype)
                for ab in blocks]
-        ri = np.concatenate([m[0] + 16384 * b for b, m in enumerate(met)])
+        ri = np.concatenate([m[0] + _RAY_BLOCK * b for b, m in enumerate(met)])
         best = np.concatenate([m[1] for m in met])
         pbest = np.concatenate([m[2] for m in met])
         del met, blocks
@@ -308,6 +308,10 @@ def oblique_runs(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.n
     mu /= np.maximum(np.hypot(mu[:, 0], mu[:, 1]), 1e-12)[:, None]
     along = x * mu[run, 0] + y * mu[run, 1]
     return run.astype(np.int64), along
+
+
+#: Rays per block of :func:`oblique_runs` (measured best on bench view 0: docs/accuracy.md).
+_RAY_BLOCK = 16384
 
 
 def _ray_hits(grid, none, st, x, y, ux, uy, line, ray, gw, offset, itype):

@@ -417,9 +417,15 @@ def _scores(model, rig, gordon, cells, P, N, owner, view, pitch, centres_of) -> 
     return cos - rms / pitch
 
 
-def _changed(P: np.ndarray, rows: np.ndarray, gone: np.ndarray, reach: float) -> np.ndarray:
-    """Which of the cells ``rows`` (indices) lie within ``reach`` of a cell of ``gone``
-    (indices): the cells whose neighbours within ``reach`` a removal of ``gone`` changes."""
+def _changed(P: np.ndarray, rows: np.ndarray, supported: np.ndarray, before: np.ndarray,
+             reach: float) -> np.ndarray | None:
+    """Which of the cells ``rows`` (indices) lie within ``reach`` of a cell supported
+    ``before`` (bool, a superset of ``supported``) and no longer: the cells whose neighbours
+    within ``reach`` among the supported ones changed. None when ``before`` is not such a
+    superset (every row is to be examined)."""
+    if len(before) != len(P) or (supported & ~before).any():
+        return None
+    gone = np.flatnonzero(before & ~supported)
     if len(gone) == 0 or len(rows) == 0:
         return np.zeros(len(rows), bool)
     d, _ = cKDTree(P[gone]).query(P[rows], distance_upper_bound=reach)
@@ -440,9 +446,8 @@ def _covered(P, N, owner, view, score, supported, opt: CadOptions,
     tree = cKDTree(P[idx])
     k = min(opt.neighbours, len(idx))
     rows = idx
-    if previous is not None and len(previous[1]) == len(P) and not (
-            supported & ~previous[1]).any():
-        again = _changed(P, idx, np.flatnonzero(previous[1] & ~supported), opt.cover_mm)
+    again = None if previous is None else _changed(P, idx, supported, previous[1], opt.cover_mm)
+    if again is not None:
         out[idx] = previous[0][idx]
         rows = idx[again]
     d, j = tree.query(P[rows], k=k, distance_upper_bound=opt.cover_mm)
@@ -475,10 +480,9 @@ def _inconsistent(P, N, pview, cells, supported, opt: CadOptions,
     reach = 4.0 * max(opt.cell_mm, opt.consistent_mm)
     k = min(6 * opt.neighbours, len(idx))
     todo = np.flatnonzero(cells)
-    if previous is not None and len(previous[2]) == len(P) and not (
-            supported & ~previous[2]).any():
+    again = None if previous is None else _changed(P, todo, supported, previous[2], reach)
+    if again is not None:
         seen = previous[1][todo]
-        again = _changed(P, todo, np.flatnonzero(previous[2] & ~supported), reach)
         out[todo[seen]] = previous[0][todo[seen]]
         todo = todo[~seen | again]
     for at in range(0, len(todo), chunk):
