@@ -58,9 +58,22 @@ __all__ = [
 #: Where to install Dask from, in the one-line error when it is missing.
 NEEDS_DASK = "needs dask.distributed (pip install 'nurbscan[batch]')"
 
-#: Dask settings of the ``LocalCluster``'s workers: Dask's sampling profiler (a walk of the
-#: task's stack every 10 ms) is off; the tasks' times are in each scan's report.
-WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
+#: The LocalCluster scheduler's guess of each kind of task's time (s, by key prefix) before
+#: it has seen one finish: a 1024 x 768 view task takes about 1.2 s and its 4-view scan's
+#: finish task about 8 s (7.1 MP: 8 s and 44 s for 2 views); only the ratio matters, and only
+#: until the first task of each kind has finished (Dask then uses the measured times). Without
+#: them Dask takes 0.5 s for the finish task it has not timed yet, so that a worker that has
+#: just started one looks the less busy and is handed the next scan's finish task too: the
+#: small batch then ran two finish tasks one after the other on one worker while the other
+#: idled at the end (``benchmarks/bench_batch.py``).
+TASK_SECONDS = {"nurbscan-calibration": 0.01, "nurbscan-plan": 0.01, "nurbscan-view": 1.0,
+                "nurbscan-finish": 8.0}
+#: Dask settings of the ``LocalCluster``: the workers' sampling profiler (a walk of the task's
+#: stack every 10 ms) is off, the tasks' times are in each scan's report; and the scheduler's
+#: guesses of the task times (:data:`TASK_SECONDS`).
+CLUSTER_CONFIG = {"distributed.worker.profile.enabled": False,
+                  "distributed.scheduler.default-task-durations": {
+                      k: f"{s}s" for k, s in TASK_SECONDS.items()}}
 #: What each worker runs when it starts (``dask worker --preload``): glibc's memory reuse as in
 #: ``nurbscan reconstruct``, and the tasks' imports (:mod:`nurbscan.batch.preload`).
 WORKER_PRELOAD = ("nurbscan.batch.preload",)
@@ -132,7 +145,7 @@ def dask_client(scheduler: str | None = None, workers: int = 2) -> Iterator:
         raise NurbscanError(f"--workers {workers}: must be at least 1")
     import dask
 
-    with dask.config.set(WORKER_CONFIG), \
+    with dask.config.set(CLUSTER_CONFIG), \
             LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                          dashboard_address=":8787", silence_logs=logging.ERROR,
                          preload=list(WORKER_PRELOAD)) as cluster, \
