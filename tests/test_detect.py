@@ -2049,3 +2049,23 @@ def test_row_sums_and_mask_picks_are_numpys_bit_for_bit():
     v2 = rng.random((1000, 2)).astype(np.float32)
     got = pick(m, p[:, 0], v2)
     assert got[0].tobytes() == p[:, 0][m].tobytes() and got[1].tobytes() == v2[m].tobytes()
+
+
+def test_transposed_is_numpys_transpose_for_every_element_size():
+    """``_pick.transposed`` (cv2.transpose of the elements' bytes) gives numpy's contiguous
+    transpose, bytes, dtype and shape, for the element sizes it carries and those it leaves
+    to numpy, NaN payloads and -0.0 included, on empty and non-contiguous arrays too."""
+    from nurbscan.detect._pick import transposed
+
+    rng = np.random.default_rng(5)
+    f = rng.normal(size=(7, 300))
+    f[0, :5] = [np.nan, -0.0, np.inf, -np.nan, 1e-310]
+    cases = [rng.random((9, 301)) < 0.5, rng.integers(0, 60000, (8, 257)).astype(np.uint16),
+             rng.integers(-2**31, 2**31 - 1, (5, 33)).astype(np.int32),
+             rng.integers(-2**62, 2**62, (8, 1000)), f, f.astype(np.float32),
+             f.astype(np.complex128), np.zeros((0, 4)), np.zeros((3, 0), np.int64), f[:, ::2],
+             np.zeros((1, 5), np.int8)]
+    for a in cases:
+        got, want = transposed(a), np.ascontiguousarray(a.T)
+        assert got.dtype == want.dtype and got.shape == want.shape, a.dtype
+        assert got.flags.c_contiguous and got.tobytes() == want.tobytes(), a.dtype

@@ -22,8 +22,9 @@ camera's colour crosstalk); ambiguous samples (nearest / second-nearest distance
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
+
+from ._pick import transposed
 
 
 def bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -102,8 +103,7 @@ def classify_colours(samples: np.ndarray, rgb: np.ndarray, iterations: int = 5,
         for c in range(3):
             sums = np.bincount(a, weights=train[:, c], minlength=q)
             centres[:, c] = np.where(cnt > 5, sums / np.maximum(cnt, 1), centres[:, c])
-    d = np.sqrt(cv2.transpose(_sq_distances(np.ascontiguousarray(chroma.T), centres))
-                if len(chroma) else ((chroma[:, None, :] - centres[None]) ** 2).sum(-1))
+    d = np.sqrt(transposed(_sq_distances(np.ascontiguousarray(chroma.T), centres)))
     o = np.argsort(d, axis=1)
     d1 = np.take_along_axis(d, o[:, :1], 1)[:, 0]
     d2 = np.take_along_axis(d, o[:, 1:2], 1)[:, 0]
@@ -337,12 +337,11 @@ def _ray_hits(grid, none, st, x, y, ux, uy, line, ray, gw, offset, itype):
     j = np.take(grid, sy.astype(itype))  # the points met, (step, ray)
     del sy
     # a sample meeting the point its ray's previous sample met is left out (its tests are
-    # that one's); then ray by ray in step order (cv2.transpose: the copies in a tenth of
-    # numpy's time)
+    # that one's); then ray by ray in step order (:func:`~._pick.transposed`)
     met = j != none
     met[1:] &= j[1:] != j[:-1]
-    hit = np.flatnonzero(cv2.transpose(met.view(np.uint8)).view(bool))
-    jj = cv2.transpose(j).ravel()[hit].astype(np.int64)
+    hit = np.flatnonzero(transposed(met))
+    jj = transposed(j).ravel()[hit].astype(np.int64)
     nc = len(st)
     ri = hit >> 3 if nc == 8 else hit // nc
     other = line[jj] != line[ray][ri]  # (a point does not meet its own chain)

@@ -17,9 +17,9 @@ for horizontal ones); chains shorter than ``min_length`` points are dropped.
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
+from ._pick import transposed
 from .decode import small_ints
 from .edges import EdgePoints
 
@@ -183,7 +183,7 @@ def _window_fit(along: np.ndarray, across: np.ndarray, line: np.ndarray, offs: n
         if weight is not None:
             w *= weight[j]
         c0[r], c1[r], sw[r] = _fit_lines_t(dt, across[j], w)
-        wts[r] = cv2.transpose(w)
+        wts[r] = transposed(w)
     return c0, c1, sw, wts
 
 

@@ -36,6 +36,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ._pick import transposed
 from ._threads import parallel_map
 
 
@@ -250,7 +251,7 @@ def line_taps(ix: np.ndarray, iy: np.ndarray, axis, slope: np.ndarray, step,
     if n == 0:
         return np.zeros((0, k, 4), np.int64), np.zeros((0, k, 4))
     # computed step by step ((K, ...) rows of the points' length: numpy's inner loops run
-    # over the points), then turned to (N, K, 4) by cv2.transpose (a copy of the bytes)
+    # over the points), then turned to (N, K, 4) (:func:`_to_points`)
     off = step[:, None] * np.asarray(slope, np.float64)[None, :]  # (K, N)
     f = np.floor(off)
     t = off - f
@@ -281,10 +282,9 @@ def line_taps(ix: np.ndarray, iy: np.ndarray, axis, slope: np.ndarray, step,
 
 
 def _to_points(a: np.ndarray) -> np.ndarray:
-    """A (K, 4, N) array of 8-byte elements as (N, K, 4), C-contiguous (cv2.transpose of its
-    bytes)."""
+    """A (K, 4, N) array as (N, K, 4), C-contiguous (:func:`~._pick.transposed`)."""
     k, _, n = a.shape
-    return cv2.transpose(a.reshape(4 * k, n).view(np.float64)).view(a.dtype).reshape(n, k, 4)
+    return transposed(a.reshape(4 * k, n)).reshape(n, k, 4)
 
 
 def sample_taps(img: np.ndarray, idx: np.ndarray, wts: np.ndarray) -> np.ndarray:
