@@ -6,7 +6,11 @@
    identical (sha256 of each model's arrays), and the cluster's wall time is compared with the
    serial tasks' own time summed over 2 workers (target: within 1.2 x). Both run twice,
    alternating, and each mode's best round is compared (:data:`ROUNDS`); every round's ratio
-   and the host's steal share of the CPU during each run are reported beside it.
+   and the host's steal share of the CPU during each run are reported beside it. Each round
+   also runs the machine's own bound without a scheduler (:func:`_serial_pair`): two serial
+   processes side by side, each on half the scans, started and importing as the workers do;
+   its ratio by the same measure is what any two-worker schedule of these tasks could reach
+   in that round, so the cluster's excess over it is what Dask costs.
 2. The per-task figures for a full-size scan: one 7.1 MP view (3072 x 2304, the default rig)
    and the finish task of a 2-view 7.1 MP scan, each run in a fresh process for its time and
    peak resident memory (``VmHWM`` reset after the imports, less the process's then), and
@@ -37,7 +41,7 @@ SIZE = (1024, 768)
 WORKERS = 2
 #: Rounds of the small batch (serial, then the LocalCluster): on a shared VM a run's times vary
 #: by 10-70 % from run to run (the host's other guests), so each mode's best round is compared.
-ROUNDS = 2
+ROUNDS = 3
 MODEL_SCANS, MODEL_VIEWS = 1000, 24
 
 
@@ -178,6 +182,7 @@ def small_batch(root: Path) -> dict:
                           "cpu": task_seconds(s, cpu=True),
                           "hashes": [model_hash(dest / p.name / "model") for p in scans],
                           "summary": s}
+        runs["pair"] = _serial_pair(scans, root)
         rounds.append(runs)
     # the best round of each mode (the serial one by its tasks' time, the figure's reference)
     runs = {"serial": min((r["serial"] for r in rounds), key=lambda r: sum(r["tasks"].values())),
@@ -186,6 +191,17 @@ def small_batch(root: Path) -> dict:
     out["each round: wall / (serial tasks' time / 2)"] = [
         round(r["dask"]["wall"] / (sum(r["serial"]["tasks"].values()) / WORKERS), 3)
         for r in rounds]
+    out["each round: two serial processes side by side (half the scans each), wall / (serial "
+        "tasks' time / 2): the machine's bound"] = [
+        round(r["pair"]["wall"] / (sum(r["serial"]["tasks"].values()) / WORKERS), 3)
+        for r in rounds]
+    out["each round: the cluster's wall over the side-by-side pair's"] = [
+        round(r["dask"]["wall"] / r["pair"]["wall"], 3) for r in rounds]
+    out["each round: the side-by-side pair's tasks' time over the serial run's"] = [
+        round(sum(r["pair"]["tasks"].values()) / sum(r["serial"]["tasks"].values()), 3)
+        for r in rounds]
+    out["each round: the host's steal share of the CPU (serial, cluster, pair)"] = [
+        [round(r[m]["steal"], 4) for m in ("serial", "dask", "pair")] for r in rounds]
     out["every run's models identical"] = all(
         r[m]["hashes"] == rounds[0]["serial"]["hashes"] for r in rounds for m in r)
     runs["serial_one_core"] = _serial_one_core(scans, root)
@@ -233,6 +249,40 @@ s = run_batch(scans, out, calib=calib, options=BatchOptions(exports=("glb",), ev
               serial=True)
 assert s["ok"] == len(scans), s
 """
+
+
+def _serial_pair(scans: list[Path], root: Path) -> dict:
+    """Two serial runs side by side, in fresh processes, on alternate scans (half each; the
+    scans are alike, so the halves are balanced): the time two processes of this machine take
+    for the batch with no scheduler, no transfers and no task placement, from their start
+    (interpreter and imports included, as a worker's) to the later one's end. Its wall time
+    bounds what a two-worker cluster can reach on the machine at that moment; its tasks' time
+    over the serial run's measures how much slower the tasks run when both cores work."""
+    dests = [root / f"out_pair_{i}" for i in range(WORKERS)]
+    for d in dests:
+        shutil.rmtree(d, ignore_errors=True)
+    load0, ticks0 = loadavg(), cpu_ticks()
+    t0 = time.perf_counter()
+    procs = [subprocess.Popen([sys.executable, "-c", SERIAL_CHILD,
+                               "|".join(map(str, scans[i::WORKERS])), str(d),
+                               str(root / "calib.json")],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env=os.environ.copy())
+             for i, d in enumerate(dests)]
+    errs = [p.communicate()[1] for p in procs]
+    wall = time.perf_counter() - t0
+    for p, err in zip(procs, errs, strict=True):
+        if p.returncode:
+            raise RuntimeError(f"serial run side by side failed: {err[-2000:]}")
+    tasks: dict[str, float] = {}
+    hashes = {}
+    for i, d in enumerate(dests):
+        for k, v in task_seconds(json.loads((d / "batch.json").read_text())).items():
+            tasks[k] = tasks.get(k, 0.0) + v
+        for p in scans[i::WORKERS]:
+            hashes[p.name] = model_hash(d / p.name / "model")
+    return {"wall": wall, "tasks": tasks, "load": f"{load0} -> {loadavg()}",
+            "steal": steal_share(ticks0), "hashes": [hashes[p.name] for p in scans]}
 
 
 def _serial_one_core(scans: list[Path], root: Path) -> dict:
