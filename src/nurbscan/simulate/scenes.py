@@ -597,24 +597,7 @@ class Scene:
         if bad.size:
             # retry on the surfaces of the nearest mesh vertices (patch borders)
             _, vs, vuv = self._candidates_near(o[bad] + t0[bad, None] * d[bad], 12)
-            k = vs.shape[1]
-            best = np.full(bad.size, np.inf)
-            for j in range(k):
-                new = np.ones(bad.size, bool)
-                for jj in range(j):
-                    new &= vs[:, jj] != vs[:, j]
-                new &= vs[:, j] != sid[bad]
-                if not new.any():
-                    continue
-                sel = bad[new]
-                tj, uvj, okj = self._ray_newton(o[sel], d[sel], t0[sel], vs[new, j], vuv[new, j])
-                dt = np.abs(tj - t0[sel])
-                okj &= (dt <= max_dt) & (dt < best[new])
-                w = sel[okj]
-                t[w], uv1[w], sid[w], ok[w] = tj[okj], uvj[okj], vs[new, j][okj], True
-                b = best[new]
-                b[okj] = dt[okj]
-                best[new] = b
+            self._retry_candidates(o, d, t0, bad, vs, vuv, max_dt, t, uv1, sid, ok)
         # the other root of a silhouette sliver: restart reflected through the mesh hit
         wrong = self._wrong_side(d, sid, uv1, ok, facing)
         if wrong.any():
@@ -622,19 +605,60 @@ class Scene:
             ok[w] = False
             t_bad, uv_bad, s_bad = t[w], uv1[w], sid[w]
             start_uv = np.where(s_bad[:, None] == sid[w][:, None], uv_start[w], uv_bad)
-            for fac in (1.0, 2.0, 4.0, 8.0):
-                tt = t0[w] - fac * (t_bad - t0[w])
-                uu = start_uv - fac * (uv_bad - start_uv)
-                uu = np.column_stack([
-                    np.clip(uu[:, 0], *self._domain_arrays(s_bad)[0]),
-                    np.clip(uu[:, 1], *self._domain_arrays(s_bad)[1]),
-                ])
-                tj, uvj, okj = self._ray_newton(o[w], d[w], tt, s_bad, uu)
+            facs = (1.0, 2.0, 4.0, 8.0)
+            (ulo, uhi), (vlo, vhi) = self._domain_arrays(s_bad)
+            tt = np.concatenate([t0[w] - fac * (t_bad - t0[w]) for fac in facs])
+            uu = np.concatenate([start_uv - fac * (uv_bad - start_uv) for fac in facs])
+            m = len(facs)
+            uu = np.column_stack([np.clip(uu[:, 0], np.tile(ulo, m), np.tile(uhi, m)),
+                                  np.clip(uu[:, 1], np.tile(vlo, m), np.tile(vhi, m))])
+            # every restart at once (each ray's Newton is its own), accepted in their order
+            ww = np.tile(w, m)
+            tall, uvall, okall = self._ray_newton(o[ww], d[ww], tt, np.tile(s_bad, m), uu)
+            for i in range(m):
+                part = slice(i * w.size, (i + 1) * w.size)
+                tj, uvj, okj = tall[part], uvall[part], okall[part]
                 okj &= (np.abs(tj - t0[w]) <= max_dt) & (np.abs(tj - t_bad) > 1e-7) & ~ok[w]
                 okj &= ~self._wrong_side(d[w], s_bad, uvj, okj, facing[w])
                 acc = w[okj]
                 t[acc], uv1[acc], ok[acc] = tj[okj], uvj[okj], True
         return t, uv1, sid, ok
+
+    def _retry_candidates(self, o, d, t0, bad, vs, vuv, max_dt, t, uv1, sid, ok):
+        """Newton from the nearest mesh vertices of other surfaces for the rays ``bad``
+        (``vs`` (B, k) their surfaces, ``vuv`` (B, k, 2) their parameters, nearest first):
+        candidate j of a ray is tried where its surface is not that of a nearer candidate nor
+        the ray's current one, and the root nearest ``t0`` within ``max_dt`` is kept; ``t``,
+        ``uv1``, ``sid`` and ``ok`` are updated in place.
+
+        Every candidate that may be tried is solved in one Newton call (each ray's iteration
+        is its own, so the roots are those of one call per candidate); the choice then runs
+        over the candidates in order, the ray's current surface as it was at that candidate.
+        """
+        k = vs.shape[1]
+        first = np.ones(vs.shape, bool)  # the surface not among the nearer candidates
+        for j in range(1, k):
+            first[:, j] = (vs[:, :j] != vs[:, j:j + 1]).all(axis=1)
+        # the current surface is checked in the choice below: a ray that took a candidate
+        # tries the surface it came with again at that surface's own candidate
+        jr, jc = np.nonzero(first.T)  # candidate-major order
+        if jr.size == 0:
+            return
+        sel = bad[jc]
+        tj, uvj, okj = self._ray_newton(o[sel], d[sel], t0[sel], vs[jc, jr], vuv[jc, jr])
+        dt = np.abs(tj - t0[sel])
+        okj &= dt <= max_dt
+        best = np.full(bad.size, np.inf)
+        starts = np.searchsorted(jr, np.arange(k + 1))
+        for j in range(k):
+            a, b = starts[j], starts[j + 1]
+            if a == b:
+                continue
+            rows, w = jc[a:b], sel[a:b]
+            acc = okj[a:b] & (vs[rows, j] != sid[w]) & (dt[a:b] < best[rows])
+            w = w[acc]
+            t[w], uv1[w], sid[w], ok[w] = tj[a:b][acc], uvj[a:b][acc], vs[rows, j][acc], True
+            best[rows[acc]] = dt[a:b][acc]
 
     def _domain_arrays(self, sid):
         dom = np.array([self._domain(int(k)) for k in range(self.n_surfaces)])[sid]
