@@ -67,3 +67,36 @@ def test_workers_die_with_their_parent():
     finally:
         if parent.poll() is None:
             parent.kill()
+
+
+def _in_heap(nbytes: int) -> bool:
+    """Whether a fresh numpy array of ``nbytes`` lies in this process's brk heap (glibc's
+    ``[heap]`` in /proc/self/maps), i.e. came from malloc's heap rather than its own mmap."""
+    import numpy as np
+
+    a = np.empty(nbytes, np.uint8)
+    addr = a.ctypes.data
+    for line in Path("/proc/self/maps").read_text().splitlines():
+        if line.endswith("[heap]"):
+            lo, hi = (int(x, 16) for x in line.split()[0].split("-"))
+            if lo <= addr < hi:
+                return True
+    return False
+
+
+def test_workers_reuse_freed_memory():
+    """A worker sets malloc's thresholds at glibc's maxima (nurbscan._malloc): a 20 MB array,
+    which glibc's defaults map afresh (threshold 128 kB until a large block is freed), comes
+    from the heap in a worker; in this process, without the setting, it does not."""
+    import ctypes.util
+
+    from nurbscan._parallel import process_map
+
+    if "libc.so" not in (ctypes.util.find_library("c") or ""):
+        pytest.skip("glibc's malloc only")
+    here = str(Path(__file__).parent)
+    probe = [sys.executable, "-c", f"import sys; sys.path.insert(0, {here!r}); "
+             "import test_parallel as t; print(t._in_heap(20 << 20))"]
+    plain = subprocess.run(probe, capture_output=True, text=True, check=True).stdout.split()
+    assert plain == ["False"]
+    assert process_map(_in_heap, [20 << 20, 20 << 20], 2) == [True, True]

@@ -8,7 +8,9 @@ in the jobs' order, so the outcome does not depend on the number of workers.
 
 Workers die with their parent: each one watches its parent process (:func:`_watch_parent`) and
 exits when the parent is gone, so that a ``reconstruct`` killed with ``kill -9`` leaves no worker
-writing behind it.
+writing behind it. Each worker also sets glibc's malloc to reuse the memory it frees
+(:func:`nurbscan._malloc.reuse_freed_memory`): a render's image-sized temporaries are then not
+new pages each time.
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any
+
+from ._malloc import reuse_freed_memory
 
 #: How often a worker looks whether its parent is still there, s.
 PARENT_POLL_S = 0.5
@@ -34,9 +38,11 @@ def _watch_parent(parent: int) -> None:
 
 def _worker_start(parent: int, initializer: Callable[..., None] | None, initargs: tuple
                   ) -> None:
-    """A worker's first step: watch the parent (daemon thread), then the caller's initializer."""
+    """A worker's first step: watch the parent (daemon thread), set malloc's reuse of freed
+    memory (:func:`nurbscan._malloc.reuse_freed_memory`), then the caller's initializer."""
     if os.getppid() != parent:
         os._exit(1)
+    reuse_freed_memory()
     threading.Thread(target=_watch_parent, args=(parent,), daemon=True,
                      name="nurbscan-parent-watch").start()
     if initializer is not None:

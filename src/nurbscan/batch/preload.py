@@ -5,7 +5,8 @@
    threshold: every numpy temporary over 128 kB is then mapped and unmapped anew. A
    1024 x 768 view task took 94 000 page faults in a worker against 12 000 in ``nurbscan
    reconstruct``, and about 1.3 times its CPU time. Here glibc's thresholds are set back to
-   its own adaptive maximum (``mallopt``: trim above 64 MiB, map above 32 MiB), on glibc only.
+   its own adaptive maximum (``mallopt``: trim above 64 MiB, map above 32 MiB), on glibc only,
+   as in every worker process nurbscan starts (:mod:`nurbscan._malloc`).
 2. **Imports.** The tasks import the detector, the reconstruction, the fusion (Open3D) and
    the export (trimesh, rhino3dm) lazily; imported here, a worker's first task runs as fast as
    its later ones and the imports count in the cluster's start-up, not in a scan's tasks.
@@ -22,26 +23,7 @@
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
-
-#: glibc's mallopt parameters (malloc.h) and the values set: glibc's own adaptive maxima
-#: (``DEFAULT_MMAP_THRESHOLD_MAX`` on 64-bit, and twice it for the trim threshold).
-M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
-TRIM_BYTES, MMAP_BYTES = 64 << 20, 32 << 20
-
-
-def reuse_freed_memory() -> bool:
-    """Set glibc's trim and mmap thresholds (``mallopt``); False where there is no glibc."""
-    name = ctypes.util.find_library("c")
-    try:
-        libc = ctypes.CDLL(name or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):
-        return False
-    return bool(mallopt(M_TRIM_THRESHOLD, TRIM_BYTES)) and bool(
-        mallopt(M_MMAP_THRESHOLD, MMAP_BYTES))
-
+from .._malloc import reuse_freed_memory
 
 #: OpenCV threads per worker (``cv2.setNumThreads``): one, as Dask's nanny does for OpenMP.
 OPENCV_THREADS = 1

@@ -60,20 +60,15 @@ def _pool(n: int) -> ThreadPoolExecutor:
 
 def _one_arena() -> None:
     """glibc's malloc: new threads share the existing heap instead of each one opening its
-    own (``mallopt(M_ARENA_MAX, 1)``, as ``MALLOC_ARENA_MAX=1``). A worker thread's arena
+    own (:func:`nurbscan._malloc.one_arena`). A worker thread's arena
     keeps the image-sized arrays it freed resident, where the calling thread cannot reuse
     them: bench view 0 (7.1 MP), one cold and one warm call in a fresh process, peak
     resident memory 705 MB with an arena per thread, 562-584 MB with one (one thread: 584 MB;
     the code before the threads: 526-591 MB). Affects the process's later threads too (they
     share the one heap's lock)."""
-    import ctypes
-    import ctypes.util
+    from .._malloc import one_arena
 
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or None)
-        libc.mallopt(ctypes.c_int(-8), ctypes.c_int(1))  # M_ARENA_MAX
-    except (OSError, AttributeError):  # not glibc
-        pass
+    one_arena()
 
 
 def _mark_worker() -> None:
