@@ -14,7 +14,8 @@ detection are new pages each time, and a page's first touch costs a fault and it
   the 2-core VM: one 7.1 MP teapot view rendered in one process took 29.5 and 30.7 s wall
   (8.4 and 11.3 s of it system time) with glibc's defaults and 23.0 and 23.3 s (6.3-6.5 s)
   with these settings; ``nurbscan calibrate``'s peak memory (its processes' PSS summed) was
-  1464-1515 MB with the defaults and 1465-1468 MB with them (two runs each, alternating).
+  1464-1515 MB with the defaults and 1465-1468 MB with them (two runs each, alternating), and
+  in a second such pair of runs 1498 MB against 1415 and 1463 MB.
 * :func:`one_arena` makes new threads share the main heap (``M_ARENA_MAX`` 1), so that a
   worker thread's freed image-sized arrays are not kept apart where the calling thread
   cannot reuse them (:mod:`nurbscan.detect._threads`).
