@@ -536,3 +536,39 @@ def test_cells_beside_own_data_the_patch_misses_are_cut():
     length = R * np.cos(lat_hi) * 0.5 * np.pi
     lost = old.info["area_mm2"] - new.info["area_mm2"]
     assert 0 < lost < 1.5 * length, (lost, length)
+
+
+def test_cells_past_the_patch_curves_are_cut():
+    """One view's patch (quarter 0's band) measured densely over all of it, whose curves
+    (5 vertical, 4 horizontal) begin one spacing after its first ``u`` and end one spacing
+    before its last ``v`` (a patch that reaches past its curves, as at a contour). With
+    ``beyond_spacing`` 0.4 the kept cells' centres lie at most 0.4 spacings past the curves
+    and the cells beyond are cut, those of the corner past both included; without it every
+    cell is kept."""
+    from dataclasses import replace
+
+    A = _band(quarter_sphere(0))
+    (u0, u1), (v0, v1) = A.domain
+    du, dv = u1 - u0, v1 - v0
+    cu, cv = [u0 + 0.2 * du, u1], [v0, v1 - 0.25 * dv]  # spacings 0.2 du and 0.25 dv
+    rng = np.random.default_rng(3)
+    X = _grid(A, 80)
+    X = X + 0.003 * rng.standard_normal((len(X), 1)) * (X - CENTRE) / R
+    m = Model(surfaces=[{"kind": "gordon", "view": 0, "patch": 0, "n_curves": [5, 4],
+                         "vertical": [u0, u1], "horizontal": [v0, v1],
+                         "vertical_curves": cu, "horizontal_curves": cv, "surface": A}],
+              views=[{"index": 0, "table_angle": 0.0}])
+    m.edge_points = X
+    m.edge_view = np.zeros(len(X), int)
+    old = cad_set(m, None, replace(OPT, beyond_spacing=None))
+    new = cad_set(m, None, OPT)
+    assert old.patches[0]["keep"].all() and old.info["cells_beyond"] == 0, old.info
+    p = new.patches[0]
+    u, v = np.asarray(p["u"]), np.asarray(p["v"])
+    uc, vc = 0.5 * (u[:-1] + u[1:]), 0.5 * (v[:-1] + v[1:])
+    lo, hi = cu[0] - 0.4 * 0.2 * du, cv[1] + 0.4 * 0.25 * dv
+    want = (uc >= lo)[:, None] & (vc <= hi)[None, :]
+    assert np.array_equal(p["keep"], want), (np.argwhere(p["keep"] != want), lo, hi)
+    assert new.info["cells_beyond"] == (~want).sum() > 0, new.info
+    # the corner past both the first vertical and the last horizontal curve is gone
+    assert not p["keep"][uc < lo][:, vc > hi].any()

@@ -18,6 +18,11 @@ coincide, only the best patch, and cuts every patch back to its measured data:
    patch), and the cells within ``miss_cells`` cells of a point farther from the patch than
    ``miss_sigma`` robust standard deviations of the view's residuals are cut as well
    (:func:`_missed`).
+   Where a patch reaches past its first or last curve of a family (:func:`nurbscan.reconstruct.
+   network.patch_extents`: the other family's curves go on there), the surface follows one
+   family's data only, and at a corner past both none: with ``beyond_spacing``, cells whose
+   centre lies farther past those curves than that share of the family's mean curve spacing
+   are cut (:func:`_beyond_curves`).
    With the model's fused mesh (:mod:`nurbscan.merge.fusion`: screened Poisson of all
    views' samples, trimmed to where data is), a cell whose centre or one of its corners lies
    farther than ``fused_mm`` from the fused mesh (exact point-to-triangle distance) is cut
@@ -117,6 +122,14 @@ class CadOptions:
     miss_cells : int
         Reach of the ``miss_sigma`` cut, cells (3: about 1 mm at ``cell_mm`` 0.3, as far as
         a bad cell of that scan lies from the missed data).
+    beyond_spacing : float or None
+        Cells whose centre lies past the patch's first or last curve of either family by more
+        than this share of that family's mean curve spacing (in projector px, the surface's
+        parameters) are cut before ownership (step 2; None: no such cut; a model written
+        before the patches recorded their curves' coordinates is not cut). On the 3072 x
+        2304 teapot scan the 8 cells over 0.2 mm that ``miss_sigma`` leaves all lie 0.49-1.09
+        spacings past a patch's last curve; 0.4 (a fifth of the pattern's pitch) keeps a
+        patch within reach of its data.
     """
 
     cell_mm: float = 0.3
@@ -130,12 +143,15 @@ class CadOptions:
     fused_mm: float | None = 0.1
     miss_sigma: float | None = 15.0
     miss_cells: int = 3
+    beyond_spacing: float | None = 0.4
 
     def __post_init__(self) -> None:
         if not (self.cell_mm > 0 and self.support_pitch > 0 and self.cover_mm > 0):
             raise NurbscanError("CAD set: cell_mm, support_pitch and cover_mm must be > 0")
         if (self.miss_sigma is not None and not self.miss_sigma > 0) or self.miss_cells < 0:
             raise NurbscanError("CAD set: miss_sigma must be > 0 (or None), miss_cells >= 0")
+        if self.beyond_spacing is not None and not self.beyond_spacing >= 0:
+            raise NurbscanError("CAD set: beyond_spacing must be >= 0 (or None)")
 
     def to_dict(self) -> dict:
         """JSON-ready dict."""
@@ -157,7 +173,8 @@ class CadSet:
         (nu, nv) bool, its kept cells (the surfaces above are their rectangles).
     info : dict
         Counts and areas: ``patches``, ``patches_kept``, ``surfaces``, ``cells``,
-        ``cells_kept``, ``cells_unsupported``, ``cells_missed`` (cut by ``miss_sigma``),
+        ``cells_kept``, ``cells_unsupported``, ``cells_beyond`` (cut by ``beyond_spacing``),
+        ``cells_missed`` (cut by ``miss_sigma``),
         ``cells_off_fused`` (cut by the fused mesh),
         ``cells_covered``, ``area_mm2`` (kept cells),
         ``pitch_mm``, ``options``.
@@ -199,6 +216,11 @@ def cad_set(model, rig=None, options: CadOptions | None = None, progress=None) -
     view = np.array([int(s["view"]) for s in gordon])
     supported, sigma = _supported(model, P, N, view[owner], opt.support_pitch * pitch,
                                   opt.residual_sigma)
+    beyond = np.zeros(len(P), bool)
+    if opt.beyond_spacing is not None:
+        beyond = np.concatenate([_beyond_curves(s, c, opt.beyond_spacing)
+                                 for s, c in zip(gordon, cells, strict=True)]) & supported
+        supported &= ~beyond
     missed = np.zeros(len(P), bool)
     if opt.miss_sigma is not None:
         missed = _missed(model, cells, P, N, owner, view[owner], sigma, opt) & supported
@@ -240,7 +262,8 @@ def cad_set(model, rig=None, options: CadOptions | None = None, progress=None) -
     area = np.concatenate([c["area"] for c in cells])
     info = {"patches": len(gordon), "patches_kept": len({(d["view"], d["patch"]) for d in out}),
             "surfaces": len(out), "cells": int(len(P)), "cells_kept": int(keep.sum()),
-            "cells_unsupported": int((~supported & ~off_fused & ~missed).sum()),
+            "cells_unsupported": int((~supported & ~off_fused & ~missed & ~beyond).sum()),
+            "cells_beyond": int(beyond.sum()),
             "cells_missed": int(missed.sum()),
             "cells_off_fused": int(off_fused.sum()),
             "cells_covered": int((covered & supported & ~inconsistent).sum()),
@@ -249,7 +272,8 @@ def cad_set(model, rig=None, options: CadOptions | None = None, progress=None) -
             "pitch_mm": pitch, "options": opt.to_dict()}
     say(f"CAD set: {info['surfaces']} surfaces from {info['patches_kept']} of "
         f"{info['patches']} Gordon patches; {info['cells_unsupported']} of {info['cells']} "
-        f"cells past the data cut, {info['cells_missed']} beside own data they miss, "
+        f"cells past the data cut, {info['cells_beyond']} past the curves, "
+        f"{info['cells_missed']} beside own data they miss, "
         f"{info['cells_off_fused']} off the fused mesh, "
         f"{info['cells_covered']} under a better view's patch, "
         f"{info['cells_inconsistent']} off the other views' cells")
@@ -314,6 +338,27 @@ def _supported(model, P: np.ndarray, N: np.ndarray, pview: np.ndarray, reach: fl
         if residual_sigma is not None:
             ok[sel] &= med <= residual_sigma * sigma
     return ok, sigmas
+
+
+def _beyond_curves(entry: dict, cells: dict, spacing: float) -> np.ndarray:
+    """Which of a patch's cells ((nu * nv,) bool, :func:`_cells`' order) have their centre
+    farther past the patch's first or last curve of either family than ``spacing`` times
+    that family's mean curve spacing (step 2). ``entry`` is the model's surface entry:
+    ``vertical_curves`` and ``horizontal_curves`` (first, last coordinate of the real
+    curves, projector px = the surface's parameters) and ``n_curves``; without them (a model
+    of an earlier version) no cell."""
+    nu, nv = cells["shape"]
+    cu, cv, n = (entry.get(k) for k in ("vertical_curves", "horizontal_curves", "n_curves"))
+    if cu is None or cv is None or n is None:
+        return np.zeros(nu * nv, bool)
+
+    def past(edges, c, count):  # (cells,) bool along one direction
+        mid = 0.5 * (edges[:-1] + edges[1:])
+        step = (float(c[1]) - float(c[0])) / max(int(count) - 1, 1)
+        return np.maximum(float(c[0]) - mid, mid - float(c[1])) > spacing * step
+
+    return (past(np.asarray(cells["u"]), cu, n[0])[:, None]
+            | past(np.asarray(cells["v"]), cv, n[1])[None, :]).ravel()
 
 
 def _missed(model, cells: list, P: np.ndarray, N: np.ndarray, owner: np.ndarray,

@@ -556,13 +556,16 @@ class Patch:
     ``vertical`` and ``horizontal`` are the (first, last) projector coordinates of the curves
     (px), i.e. the parameter domain ``u in [c_i0, c_i1]``, ``v in [c_j0, c_j1]``, widened by
     the patch's reach past its first and last curves (:func:`patch_extents`); ``n_curves``
-    counts the real curves, ``crossings`` includes the virtual ones.
+    counts the real curves and ``vertical_curves``, ``horizontal_curves`` are their (first,
+    last) coordinates (px: the domain less the reach), ``crossings`` includes the virtual ones.
     """
 
     index: tuple[int, int, int, int]
     vertical: tuple[float, float]
     horizontal: tuple[float, float]
     n_curves: tuple[int, int]
+    vertical_curves: tuple[float, float]
+    horizontal_curves: tuple[float, float]
     horizontal_skin: NurbsSurface
     vertical_skin: NurbsSurface
     gordon: NurbsSurface
@@ -906,6 +909,8 @@ def gordon_patch(vlines, hlines, rect, per_span: int = 6, reach: float = 0.0,
                  vertical=(float(cu[0]), float(cu[-1])),
                  horizontal=(float(cv[0]), float(cv[-1])),
                  n_curves=(len(cu_r), len(cv_r)),
+                 vertical_curves=(float(cu_r[0]), float(cu_r[-1])),
+                 horizontal_curves=(float(cv_r[0]), float(cv_r[-1])),
                  horizontal_skin=L1, vertical_skin=L2, gordon=G, crossings=Xg)
 
 

@@ -69,7 +69,9 @@ def add_view(model: Model, res: ViewResult, rig, index: int, angle: float,
     pts, nrm = [], []
     for k, p in enumerate(res.patches):
         base = {"view": index, "patch": k, "vertical": list(p.vertical),
-                "horizontal": list(p.horizontal), "n_curves": list(p.n_curves)}
+                "horizontal": list(p.horizontal), "n_curves": list(p.n_curves),
+                "vertical_curves": list(p.vertical_curves),
+                "horizontal_curves": list(p.horizontal_curves)}
         for kind in ("horizontal_skin", "vertical_skin", "gordon"):
             model.surfaces.append({"kind": kind, **base,
                                    "surface": surface_to_object(getattr(p, kind), tt, angle)})
