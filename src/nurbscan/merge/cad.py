@@ -128,8 +128,8 @@ class CadOptions:
         parameters) are cut before ownership (step 2; None: no such cut; a model written
         before the patches recorded their curves' coordinates is not cut). On the 3072 x
         2304 teapot scan the 8 cells over 0.2 mm that ``miss_sigma`` leaves all lie 0.49-1.09
-        spacings past a patch's last curve; 0.4 (a fifth of the pattern's pitch) keeps a
-        patch within reach of its data.
+        spacings past a patch's last curve; 0.4 (on nurbscan's grid, two edges per pitch, a
+        fifth of the pitch) keeps a patch within reach of its data.
     """
 
     cell_mm: float = 0.3
