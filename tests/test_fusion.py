@@ -420,3 +420,38 @@ def test_step_faces_share_their_seams(scan_model, tmp_path):
     assert max(n_faces) <= 2 and n_faces.count(2) >= 2 * len(faces), got
     assert sum(shell_area[:3]) >= 0.95 * total, got
     assert abs(total / want - 1) < 0.08, got
+
+
+def test_evaluate_cad_finds_the_calibration_from_any_directory(scan_model, tmp_path,
+                                                               monkeypatch):
+    """`nurbscan evaluate --cad` builds the CAD set with the model's calibrated rig (the
+    patches ranked by frontality, as `export --format step` ranks them) when the model
+    records its calibration relative to where it was reconstructed and evaluate runs from
+    another directory: the rig handed to `cad_set` is the calibration file's."""
+    import nurbscan.merge.cad as cad_module
+    from nurbscan.camera import load_rig
+    from nurbscan.cli import main
+
+    root, model, loaded, ev = scan_model
+    work = tmp_path / "work"
+    shutil.copytree(root / "model", work / "model")
+    shutil.copy(loaded.meta["calibration"], work / "calib.json")
+    doc = json.loads((work / "model" / "model.json").read_text())
+    doc["meta"]["calibration"] = "calib.json"  # as `reconstruct --calib calib.json` records it
+    (work / "model" / "model.json").write_text(json.dumps(doc))
+    seen = []
+
+    def cad_set(model, rig=None, options=None, progress=None):
+        seen.append(rig)
+        raise RuntimeError("stop after cad_set's arguments")
+
+    monkeypatch.setattr(cad_module, "cad_set", cad_set)
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    with pytest.raises(RuntimeError, match="stop after"):
+        main(["evaluate", str(work / "model"), "--truth", str(root / "scan" / "truth"),
+              "--cad", "--quiet"])
+    want = load_rig(work / "calib.json")
+    assert len(seen) == 1 and seen[0] is not None, seen
+    assert np.allclose(seen[0].camera.R, want.camera.R) and np.allclose(seen[0].camera.T,
+                                                                        want.camera.T)

@@ -36,8 +36,8 @@ def run(args: argparse.Namespace) -> int:
     """Evaluate ``args.model`` against ``args.truth``; print and write the table."""
     from ..errors import NurbscanError
     from ..evaluate import evaluate_model, format_table
+    from ..export import load_model  # the paths the model records resolve from its folder
     from ..io import atomic_paths, write_json, write_text
-    from ..reconstruct import load_model
 
     if not args.cover_tol > 0:
         raise NurbscanError(f"--cover-tol {args.cover_tol}: must be positive")
