@@ -79,10 +79,11 @@ def family_labels(labels: Labels, chains: Chains, reading: Reading, prep: Prepar
         label = check_adjacencies(label, reading, pattern)
     if epipolar is not None and EPIPOLAR_ROUNDS:
         radius = EPIPOLAR_RADIUS * pitch_px_est
+        memo: dict = {}
 
         def epipolar_round(lab):
             pred = epipolar_coordinates(lab, px, py, cls, line, pattern, epipolar, radius,
-                                        stride=3)
+                                        stride=3, memo=memo)
             lab = epipolar_labels(lab, pred, cls, line, lcode_all, pattern,
                                   min_votes=min_votes, min_agreement=min_agreement)
             return epipolar_check(lab, pred, cls, line, pattern)
@@ -154,7 +155,8 @@ def _plane_at(x, y, v, src, dst, k: int, radius: float) -> tuple:
 
 
 def epipolar_coordinates(label, x, y, cls, line, pattern, other_coordinate, radius: float,
-                         k: int = 32, max_rms: float = 1.0, stride: int = 1) -> np.ndarray:
+                         k: int = 32, max_rms: float = 1.0, stride: int = 1,
+                         memo: dict | None = None) -> np.ndarray:
     """Each edge point's own projector coordinate, predicted from the other family's labelled
     points with a calibrated rig (epipolar decoding).
 
@@ -168,17 +170,25 @@ def epipolar_coordinates(label, x, y, cls, line, pattern, other_coordinate, radi
     there are fewer or where their RMS residual exceeds ``max_rms`` projector px (a depth
     step among them). Only every ``stride``-th point is predicted (NaN for the others: the
     callers decide per line). Arrays (N,) as in :func:`detect_grid`'s lines; returns (N,)
-    projector px.
+    projector px. ``memo`` (a dict, empty at first) keeps each point's edge coordinate and
+    other coordinate between the calls of one detection: a point whose edge is unchanged
+    is not intersected again (``other_coordinate`` is computed per point).
     """
     lab = label[line]
     d = cls // 2
     known = lab >= 0
     coord = point_coordinates(lab, cls, pattern)
     other = np.full(len(x), np.nan)
+    done = np.zeros(len(x), bool)
+    if memo:
+        done = known & (memo["coord"] == coord)
+        other[done] = memo["other"][done]
     for dd, name in ((0, "vertical"), (1, "horizontal")):
-        m = np.nonzero(known & (d == dd))[0]
+        m = np.nonzero(known & ~done & (d == dd))[0]
         if len(m):
             other[m] = other_coordinate(np.c_[x[m], y[m]], name, coord[m])
+    if memo is not None:
+        memo.update(coord=coord, other=other)
     pred = np.full(len(x), np.nan)
 
     def family(dd):  # one family's predictions (the two side by side: _threads)

@@ -100,26 +100,35 @@ def intersect_exact(projector, origin, dirs, direction: str, coord, iters: int =
     n0, n1 = q0[:, 1 - ax], q1[:, 1 - ax]
     z0, z1 = q0[:, 2], q1[:, 2]
     A = a * (1.0 + k1 * a * a)
-    B = k1 * a**3
+    B = k1 * a * a * a
     with np.errstate(divide="ignore", invalid="ignore"):
         t = -(f * m0 - A * z0) / (f * m1 - A * z1)  # plane start
+        # Newton per ray until its own step is below 1e-10 of t (each ray's result depends on
+        # that ray only); cubes as products, not pow (3 x faster)
+        act = np.arange(len(t))
         for _ in range(iters):
+            sel = slice(None) if len(act) == len(t) else act  # a view while all rays iterate
+            ta, Aa, Ba = t[sel], A[sel], B[sel]
+            ma, na, za = m0[sel] + ta * m1[sel], n0[sel] + ta * n1[sel], z0[sel] + ta * z1[sel]
             # g(t) = f m^3 - A m^2 z - B n^2 z, evaluated directly at t (no cancellation)
-            m, n, z = m0 + t * m1, n0 + t * n1, z0 + t * z1
-            g = f * m**3 - A * m * m * z - B * n * n * z
-            dg = 3 * f * m * m * m1 - A * (2 * m * m1 * z + m * m * z1) - B * (
-                2 * n * n1 * z + n * n * z1)
+            mm, nn = ma * ma, na * na
+            g = f * mm * ma - Aa * mm * za - Ba * nn * za
+            dg = 3 * f * mm * m1[sel] - Aa * (2 * ma * m1[sel] * za + mm * z1[sel]) - Ba * (
+                2 * na * n1[sel] * za + nn * z1[sel])
             step = np.where(g == 0, 0.0, g / np.where(dg == 0, 1.0, dg))
-            t = t - step
-            if not np.any(np.abs(step) > 1e-10 * np.abs(t)):
+            ta = ta - step
+            t[sel] = ta
+            act = act[np.abs(step) > 1e-10 * np.abs(ta)]
+            if not len(act):
                 break
         q = q0 + t[:, None] * q1
         yu = f * q[:, 1 - ax] / q[:, 2]
         # s = 1 + k1 (a^2 + Yd^2) with Yd = Yu / s: s^3 - (1 + k1 a^2) s^2 - k1 Yu^2 = 0
+        c2, c0 = 1.0 + k1 * a * a, k1 * yu * yu
         s = 1.0 + k1 * (a * a + yu * yu)
         for _ in range(6):
-            gs = s**3 - (1.0 + k1 * a * a) * s * s - k1 * yu * yu
-            s = s - gs / (3 * s * s - 2 * (1.0 + k1 * a * a) * s)
+            ss = s * s
+            s = s - (ss * s - c2 * ss - c0) / (3 * ss - 2 * c2 * s)
         other_d = yu / s
     if ax == 0:
         other = other_d / projector.dy + projector.cy
