@@ -15,7 +15,6 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ._threads import parallel_map
 from .chains import _along_across, chain_end_residual
@@ -24,6 +23,7 @@ from .families import local_plane
 from .intersections import Intersections
 from .labels import group_median
 from .lines import chain_slope
+from .neighbours import nearest_within
 from .prepare import NoGrid, Prepared
 from .refine import Lines
 
@@ -352,8 +352,7 @@ def plane_support(x: np.ndarray, y: np.ndarray, direction: np.ndarray, coord: np
         dst = np.nonzero(judge & (direction == d))[0]
         if len(src) < k or not len(dst):
             return None
-        dist, j = cKDTree(np.c_[x[src], y[src]]).query(np.c_[x[dst], y[dst]], k=3 * k,
-                                                        distance_upper_bound=radius)
+        dist, j = nearest_within(np.c_[x[src], y[src]], np.c_[x[dst], y[dst]], 3 * k, radius)
         jj = src[np.minimum(j, len(src) - 1)]
         ok = np.isfinite(dist) & (line[jj] != line[dst][:, None])
         ok &= np.cumsum(ok, axis=1) <= k

@@ -14,7 +14,6 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ._threads import parallel_map
 from .chains import Chains
@@ -29,6 +28,7 @@ from .labels import (
     row_consistent,
     row_order,
 )
+from .neighbours import nearest_within
 from .prepare import Prepared
 
 #: The family plane's neighbourhood (camera pitches), largest RMS residual (projector px) and
@@ -147,8 +147,7 @@ def _plane_at(x, y, v, src, dst, k: int, radius: float) -> tuple:
     """:func:`local_plane` through the ``k`` nearest points ``src`` (indices into ``x``, ``y``,
     ``v``) of each point ``dst``, for the ``dst`` that have all ``k`` within ``radius`` px.
     Returns those ``dst`` and the plane's value, RMS residual, least and largest value."""
-    dist, j = cKDTree(np.c_[x[src], y[src]]).query(np.c_[x[dst], y[dst]], k=k,
-                                                   distance_upper_bound=radius)
+    dist, j = nearest_within(np.c_[x[src], y[src]], np.c_[x[dst], y[dst]], k, radius)
     full = np.isfinite(dist).all(1)
     dst, j = dst[full], j[full]
     return (dst,) + local_plane(x[src][j], y[src][j], v[src][j], x[dst], y[dst])
