@@ -609,7 +609,16 @@ class _GapFunction:
     def __init__(self, ln: NetLine, across: np.ndarray, pts: np.ndarray, reach: float,
                  margin: float):
         self.ln, self.across, self.reach, self.margin = ln, across, reach, margin
-        self.fill = make_interp_spline(across, pts, k=min(3, len(across) - 1))
+        self.pts, self._fill = pts, None
+
+    @property
+    def fill(self):
+        """The interpolant of the crossings, made when first needed (most lines of a
+        rectangle miss no span)."""
+        if self._fill is None:
+            self._fill = make_interp_spline(self.across, self.pts,
+                                            k=min(3, len(self.across) - 1))
+        return self._fill
 
     def intervals(self, w: np.ndarray) -> np.ndarray:
         """The interval of the line's curve at each ``w`` (n,), -1 on the spans it misses."""
@@ -621,7 +630,8 @@ class _GapFunction:
     def filled(self, w: np.ndarray, P: np.ndarray) -> np.ndarray:
         """``P`` (n, 3) with the interpolant where it is NaN (the spans the line misses)."""
         bad = np.isnan(P[:, 0])
-        P[bad] = self.fill(w[bad])
+        if bad.any():
+            P[bad] = self.fill(w[bad])
         return P
 
     def __call__(self, w) -> np.ndarray:
