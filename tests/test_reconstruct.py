@@ -163,6 +163,11 @@ def test_batched_fit_matches_single_lstsq():
     fitted = evaluate_chains(t, cid, nsp, ctrl)
     assert np.allclose(np.sqrt(np.mean(np.sum((fitted - Y) ** 2, 1))), np.sqrt(np.mean(rms**2)),
                        rtol=0.2)
+    # the fit's own values at t are evaluate_chains', bit for bit (with the outlier pass too)
+    for robust in (None, 0.01):
+        ctrl, _, _, fit = fit_chains(t, Y, cid, nsp, smooth=1e-6, robust=robust,
+                                     return_fitted=True)
+        np.testing.assert_array_equal(fit, evaluate_chains(t, cid, nsp, ctrl))
 
 
 def test_batched_fit_rejects_outliers():

@@ -80,7 +80,8 @@ def _apply(first, Nb, P, local):
 
 
 def fit_chains(t: np.ndarray, Y: np.ndarray, chain: np.ndarray, n_spans: np.ndarray,
-               degree: int = 3, smooth: float = 1e-6, robust: float | None = None):
+               degree: int = 3, smooth: float = 1e-6, robust: float | None = None,
+               return_fitted: bool = False):
     """Least-squares cubic B-splines of many chains, optionally with one outlier pass.
 
     Parameters
@@ -105,11 +106,15 @@ def fit_chains(t: np.ndarray, Y: np.ndarray, chain: np.ndarray, n_spans: np.ndar
     inlier : ndarray bool (N,)
     rms : ndarray (C,)
         RMS residual of the inliers.
+    fitted : ndarray (N, d)
+        With ``return_fitted``: the fitted chains at ``t``, as :func:`evaluate_chains` gives
+        them (the same numbers; kept from the fit rather than computed again).
     """
     C = len(n_spans)
     ctrl: list = [None] * C
     inlier = np.ones(len(t), bool)
     rms = np.zeros(C)
+    fitted = np.empty(Y.shape) if return_fitted else None
     for n in np.unique(n_spans):
         chains = np.nonzero(n_spans == n)[0]
         idx = np.nonzero(np.isin(chain, chains))[0]
@@ -122,7 +127,8 @@ def fit_chains(t: np.ndarray, Y: np.ndarray, chain: np.ndarray, n_spans: np.ndar
         local = np.repeat(np.arange(Cg), np.diff(np.r_[starts, len(idx)]))
         w = np.ones(len(idx))
         P = _solve_group(first, Nb, Yg, w, local, Cg, m, smooth)
-        res = np.linalg.norm(_apply(first, Nb, P, local) - Yg, axis=1)
+        fit = _apply(first, Nb, P, local)
+        res = np.linalg.norm(fit - Yg, axis=1)
         if robust is not None:
             o = np.lexsort((res, local))
             cntc = np.bincount(local, None, Cg).astype(int)
@@ -133,13 +139,16 @@ def fit_chains(t: np.ndarray, Y: np.ndarray, chain: np.ndarray, n_spans: np.ndar
             ok = (np.bincount(local, w, Cg) >= min(4, m))[local]
             w = np.where(ok, w, 1.0)
             P = _solve_group(first, Nb, Yg, w, local, Cg, m, smooth)
-            res = np.linalg.norm(_apply(first, Nb, P, local) - Yg, axis=1)
+            fit = _apply(first, Nb, P, local)
+            res = np.linalg.norm(fit - Yg, axis=1)
             inlier[idx] = w > 0
+        if fitted is not None:
+            fitted[idx] = fit
         r2 = np.bincount(local, res**2 * w, Cg) / np.maximum(np.bincount(local, w, Cg), 1)
         for k, c in enumerate(cid[starts]):
             ctrl[c] = P[k]
             rms[c] = np.sqrt(r2[k])
-    return ctrl, inlier, rms
+    return (ctrl, inlier, rms, fitted) if return_fitted else (ctrl, inlier, rms)
 
 
 def evaluate_chains(t: np.ndarray, chain: np.ndarray, n_spans: np.ndarray, ctrl: list,

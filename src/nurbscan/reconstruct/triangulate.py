@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import NurbscanError
 from ..nurbs import NurbsCurve
 from ..nurbs.basis import basis_matrix
-from ._batch import evaluate_chains, fit_chains, uniform_knots01
+from ._batch import fit_chains, uniform_knots01
 from .light import intersect_exact
 
 DIRECTIONS = ("vertical", "horizontal")
@@ -229,9 +229,10 @@ def triangulate_lines(det, rig, knot_spacing: float = 12.0, min_points: int = 4,
     nsp = np.array([_n_spans(h - lw, c, knot_spacing)
                     for h, lw, c in zip(hi, lo, np.diff(np.r_[first, len(cid)]), strict=True)])
     t = (along - lo[cid]) / np.where(good, hi - lo, 1.0)[cid]
-    ctrl, inl, rms = fit_chains(t, other[:, None], cid, nsp, robust=robust)
+    ctrl, inl, rms, fitted = fit_chains(t, other[:, None], cid, nsp, robust=robust,
+                                        return_fitted=True)
     inl &= good[cid]
-    fitted = evaluate_chains(t, cid, nsp, ctrl)[:, 0]
+    fitted = fitted[:, 0]
     S = np.where((ax == 1)[:, None], np.stack([fitted, along], 1), np.stack([along, fitted], 1))
     S, cid_s = S[inl], cid[inl]
     C = coord[keep][cid_s]
