@@ -73,6 +73,18 @@ def _normal_equations(first, Nb, Y, w, local, C, m):
     return M, rhs
 
 
+@numba.njit(cache=True, nogil=True)
+def _lower_medians(res, starts):
+    """Per chain (the contiguous runs of ``res`` from ``starts``), the lower median: element
+    ``(n - 1) // 2`` of the run sorted, NaN last (as ``np.lexsort((res, chain))`` orders)."""
+    out = np.empty(len(starts))
+    for k in range(len(starts)):
+        a = starts[k]
+        b = starts[k + 1] if k + 1 < len(starts) else len(res)
+        out[k] = np.sort(res[a:b])[(b - a - 1) // 2]
+    return out
+
+
 def _apply(first, Nb, P, local):
     """Fitted points: sum of the non-zero basis values times their control points."""
     r = first[:, None] + np.arange(Nb.shape[1])[None]
@@ -115,9 +127,13 @@ def fit_chains(t: np.ndarray, Y: np.ndarray, chain: np.ndarray, n_spans: np.ndar
     inlier = np.ones(len(t), bool)
     rms = np.zeros(C)
     fitted = np.empty(Y.shape) if return_fitted else None
-    for n in np.unique(n_spans):
-        chains = np.nonzero(n_spans == n)[0]
-        idx = np.nonzero(np.isin(chain, chains))[0]
+    # the points of the chains of each span count, in their order (one stable sort)
+    key = n_spans[chain]
+    by_spans = np.argsort(key, kind="stable")
+    spans, at = np.unique(key[by_spans], return_index=True)
+    bounds = np.r_[at, len(key)]
+    for g, n in enumerate(spans):
+        idx = by_spans[bounds[g]:bounds[g + 1]]
         cid = chain[idx]
         m = int(n) + degree
         first, Nb = _local_basis(t[idx], int(n), degree)
@@ -130,10 +146,7 @@ def fit_chains(t: np.ndarray, Y: np.ndarray, chain: np.ndarray, n_spans: np.ndar
         fit = _apply(first, Nb, P, local)
         res = np.linalg.norm(fit - Yg, axis=1)
         if robust is not None:
-            o = np.lexsort((res, local))
-            cntc = np.bincount(local, None, Cg).astype(int)
-            mid = starts + (cntc - 1) // 2
-            med = res[o][mid]
+            med = _lower_medians(res, starts)
             lim = np.maximum(3.0 * 1.4826 * med, robust)[local]
             w = (res <= lim).astype(float)
             ok = (np.bincount(local, w, Cg) >= min(4, m))[local]
