@@ -49,3 +49,33 @@ def test_ties_by_index_and_fallbacks():
     bad = np.r_[pts, [[np.nan, 1.0]]]
     d3, i3 = nearest_within(bad, q, 1, 6.0)
     assert d3.shape == (4, 1) and np.isinf(d3[3, 0]) and i3[3, 0] == len(bad)
+
+
+def test_closest_pairs_per_group_pair():
+    """closest_pairs against the brute-force oracle: every pair within the radius, reduced to
+    the least distant of each (group of a, group of b); the tree fallback gives the same."""
+    import nurbscan.detect.neighbours as nb
+
+    rng = np.random.default_rng(5)
+    a = rng.uniform(0, 200, (700, 2))
+    b = rng.uniform(0, 200, (600, 2))
+    ga, gb = rng.integers(0, 30, 700) * 3, rng.integers(0, 20, 600) - 5  # any integers
+    i, j, d = nb.closest_pairs(a, ga, b, gb, 6.0)
+    dd = np.linalg.norm(a[:, None] - b[None], axis=2)
+    ii, jj = np.nonzero(dd <= 6.0)
+    want = {}
+    for p, q in zip(ii, jj, strict=True):
+        k = (ga[p], gb[q])
+        if k not in want or dd[p, q] < dd[want[k]]:
+            want[k] = (p, q)
+    keys = sorted(want)
+    assert len(keys) > 100
+    np.testing.assert_array_equal(i, [want[k][0] for k in keys])
+    np.testing.assert_array_equal(j, [want[k][1] for k in keys])
+    np.testing.assert_allclose(d, [dd[want[k]] for k in keys], rtol=1e-15)
+    i2, j2, d2 = nb._closest_pairs_tree(a, np.unique(ga, return_inverse=True)[1], b,
+                                        np.unique(gb, return_inverse=True)[1],
+                                        len(np.unique(gb)), 6.0)
+    np.testing.assert_array_equal(i2, i)
+    np.testing.assert_array_equal(j2, j)
+    assert [len(x) for x in nb.closest_pairs(a[:0], ga[:0], b, gb, 6.0)] == [0, 0, 0]

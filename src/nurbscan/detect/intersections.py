@@ -12,6 +12,7 @@ from scipy.spatial import cKDTree
 
 from ._threads import parallel_map
 from .lines import fit_lines
+from .neighbours import closest_pairs
 from .prepare import Prepared
 
 
@@ -109,15 +110,11 @@ def _intersections(x, y, line, direction, band, edge, coord, radius: float, k: i
     hi = np.nonzero(pd == 1)[0]
     if len(vi) < 2 or len(hi) < 2:
         return empty
-    tv = cKDTree(np.c_[x[vi], y[vi]])
-    th = cKDTree(np.c_[x[hi], y[hi]])
-    pairs = tv.sparse_distance_matrix(th, radius, output_type="ndarray")
-    if not len(pairs):
+    # per (vertical family, horizontal family), the closest pair of their points
+    ia, ib, _ = closest_pairs(np.c_[x[vi], y[vi]], pf[vi], np.c_[x[hi], y[hi]], pf[hi], radius)
+    if not len(ia):
         return empty
-    a, b, dist = vi[pairs["i"]], hi[pairs["j"]], pairs["v"]
-    key = pf[a].astype(np.int64) * 1_000_000 + pf[b]
-    o = _closest_per_key(key, dist)
-    a, b = a[o], b[o]
+    a, b = vi[ia], hi[ib]
     cx, cy = 0.5 * (x[a] + x[b]), 0.5 * (y[a] + y[b])
     span = float(max(x.max(), y.max()) + 10.0)
 
@@ -148,19 +145,6 @@ def _intersections(x, y, line, direction, band, edge, coord, radius: float, k: i
     proj = np.c_[coord[lv], coord[lh]][ok]
     return (cam, proj, np.c_[band[lv], band[lh]][ok], np.c_[edge[lv], edge[lh]][ok],
             np.c_[lv, lh][ok], np.fmax(rv, rh)[ok])
-
-
-def _closest_per_key(key: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Per distinct ``key`` (ascending), the index of its pair of least ``dist`` (the first
-    such pair among equals): ``np.lexsort((dist, key))`` read at each key's first position,
-    from one stable sort by key (6 times faster on the 2.5e5 pairs of a 7.1 MP view)."""
-    o = np.argsort(key, kind="stable")
-    ks, ds = key[o], dist[o]
-    new = np.r_[True, ks[1:] != ks[:-1]]
-    group = np.cumsum(new) - 1
-    least = np.minimum.reduceat(ds, np.nonzero(new)[0])
-    at = np.nonzero(ds == least[group])[0]  # the least pairs, by key and then position
-    return o[at[np.r_[True, group[at][1:] != group[at][:-1]]]]
 
 
 def grid_consistency(cam: np.ndarray, proj: np.ndarray, tol: float, k: int = 8) -> np.ndarray:

@@ -51,6 +51,7 @@ from scipy.spatial import cKDTree
 from ..errors import NurbscanError
 from .colour_model import chromaticity, line_contrast
 from .line_labels import DIRECTIONS, Chains, decode_family, family_chains, neighbours
+from .neighbours import closest_pairs
 from .result import DetectionResult
 from .ridges import link_ridges, ridge_points, split_directions
 
@@ -162,15 +163,11 @@ def line_intersections(x, y, line, direction, band, coord, radius: float, k: int
     vi, hi = np.nonzero(pd == 0)[0], np.nonzero(pd == 1)[0]
     if len(vi) < 2 or len(hi) < 2:
         return empty
-    pairs = cKDTree(np.c_[x[vi], y[vi]]).sparse_distance_matrix(
-        cKDTree(np.c_[x[hi], y[hi]]), radius, output_type="ndarray")
-    if not len(pairs):
+    # per (vertical line, horizontal line), the closest pair of their points
+    ia, ib, _ = closest_pairs(np.c_[x[vi], y[vi]], pb[vi], np.c_[x[hi], y[hi]], pb[hi], radius)
+    if not len(ia):
         return empty
-    a, b, dist = vi[pairs["i"]], hi[pairs["j"]], pairs["v"]
-    key = pb[a].astype(np.int64) * 100_000 + pb[b]
-    o = np.lexsort((dist, key))
-    first = np.r_[True, key[o][1:] != key[o][:-1]]
-    a, b = a[o][first], b[o][first]
+    a, b = vi[ia], hi[ib]
     cx, cy = 0.5 * (x[a] + x[b]), 0.5 * (y[a] + y[b])
     span = float(max(x.max(), y.max()) + 10.0 * radius + 10.0)
     fits = []

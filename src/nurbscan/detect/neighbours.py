@@ -85,6 +85,28 @@ def nearest_within(points: np.ndarray, queries: np.ndarray, k: int,
                        queries[:, 1].copy(), int(k), float(radius), float(cell))
 
 
+@numba.njit(cache=True, nogil=True)
+def _buckets(sx, sy, cell):
+    """The points in a grid of ``cell`` px from their least coordinates: the grid's origin
+    ``x0, y0`` and size ``nx, ny``, the points by cell (a stable sort) and each cell's first
+    position in that order (``start``, nx * ny + 1)."""
+    m = sx.shape[0]
+    x0 = sx.min()
+    y0 = sy.min()
+    nx = int((sx.max() - x0) / cell) + 1
+    ny = int((sy.max() - y0) / cell) + 1
+    cid = np.empty(m, np.int64)
+    for i in range(m):
+        cid[i] = int((sy[i] - y0) / cell) * nx + int((sx[i] - x0) / cell)
+    order = np.argsort(cid, kind="mergesort")
+    start = np.zeros(nx * ny + 1, np.int64)
+    for i in range(m):
+        start[cid[i] + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    return x0, y0, nx, ny, order, start
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
 def _scan_cell(c, start, px, py, order, x, y, r2, k, bd, bi, cnt, worst):
     """Offer cell ``c``'s points to the sorted list ``bd`` (squared distances), ``bi``."""
@@ -117,19 +139,7 @@ def _grid_query(sx, sy, qx, qy, k, r, cell):
     insertion, until a ring's nearest possible point lies beyond the ``k``-th."""
     m = sx.shape[0]
     n = qx.shape[0]
-    x0 = sx.min()
-    y0 = sy.min()
-    nx = int((sx.max() - x0) / cell) + 1
-    ny = int((sy.max() - y0) / cell) + 1
-    cid = np.empty(m, np.int64)
-    for i in range(m):
-        cid[i] = int((sy[i] - y0) / cell) * nx + int((sx[i] - x0) / cell)
-    order = np.argsort(cid, kind="mergesort")
-    start = np.zeros(nx * ny + 1, np.int64)
-    for i in range(m):
-        start[cid[i] + 1] += 1
-    for c in range(nx * ny):
-        start[c + 1] += start[c]
+    x0, y0, nx, ny, order, start = _buckets(sx, sy, cell)
     px = sx[order]
     py = sy[order]
     r2 = r * r
@@ -166,3 +176,96 @@ def _grid_query(sx, sy, qx, qy, k, r, cell):
             dist[q, j] = math.sqrt(bd[j])
             idx[q, j] = bi[j]
     return dist, idx
+
+
+def closest_pairs(a: np.ndarray, a_group: np.ndarray, b: np.ndarray, b_group: np.ndarray,
+                  radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pair of groups, the closest pair of points within ``radius`` px.
+
+    Of all pairs (point ``i`` of ``a``, point ``j`` of ``b``) with ``|a_i - b_j| <= radius``
+    the least distant one of each ``(a_group[i], b_group[j])``; among equal distances the
+    least ``i``, then ``j``. As the pairs of
+    ``cKDTree(a).sparse_distance_matrix(cKDTree(b), radius)`` reduced per group pair
+    (:func:`nurbscan.detect.intersections.grid_intersections` finds the crossing of two edge
+    lines so), on a bucket grid, without listing every pair.
+
+    Parameters
+    ----------
+    a, b : ndarray, shapes (M, 2) and (N, 2)
+        Camera px (finite).
+    a_group, b_group : ndarray of int, shapes (M,) and (N,)
+        Each point's group (e.g. its line family).
+    radius : float
+        px.
+
+    Returns
+    -------
+    i, j : ndarray of int, shape (K,)
+        The pairs, ordered by ``(a_group[i], b_group[j])``.
+    dist : ndarray, shape (K,)
+        Their distances, px.
+    """
+    a = np.ascontiguousarray(a, np.float64).reshape(-1, 2)
+    b = np.ascontiguousarray(b, np.float64).reshape(-1, 2)
+    if not len(a) or not len(b) or not radius > 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    ga, ia = np.unique(np.asarray(a_group), return_inverse=True)
+    gb, ib = np.unique(np.asarray(b_group), return_inverse=True)
+    cell = float(radius)
+    span = b.max(0) - b.min(0)
+    if len(ga) * len(gb) > MAX_GROUP_PAIRS or (
+            (span[0] / cell + 1) * (span[1] / cell + 1) > MAX_CELLS_PER_POINT * len(b) + 4096):
+        return _closest_pairs_tree(a, ia, b, ib, len(gb), radius)
+    i, j, d = _closest_pairs_grid(a[:, 0].copy(), a[:, 1].copy(), ia.astype(np.int64),
+                                  b[:, 0].copy(), b[:, 1].copy(), ib.astype(np.int64),
+                                  len(ga), len(gb), float(radius), cell)
+    return i, j, d
+
+
+#: Most (a group, b group) pairs for :func:`closest_pairs`' table (16 bytes each).
+MAX_GROUP_PAIRS = 1 << 22
+
+
+def _closest_pairs_tree(a, ia, b, ib, nb: int, radius: float):
+    """:func:`closest_pairs` by cKDTree's pair list and a sort (many groups, sparse points)."""
+    pairs = cKDTree(a).sparse_distance_matrix(cKDTree(b), radius, output_type="ndarray")
+    i, j, d = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64), pairs["v"]
+    o = np.lexsort((j, i, d, ia[i] * np.int64(nb) + ib[j]))
+    key = (ia[i] * np.int64(nb) + ib[j])[o]
+    first = np.r_[True, key[1:] != key[:-1]]
+    return i[o][first], j[o][first], d[o][first]
+
+
+@numba.njit(cache=True, nogil=True)
+def _closest_pairs_grid(ax, ay, ag, bx, by, bg, na, nb, r, cell):
+    """:func:`closest_pairs` on a grid of ``cell`` (>= ``r``) px: each ``a`` point meets the
+    ``b`` points of the 3 x 3 cells around its own; a table of ``na`` x ``nb`` group pairs
+    keeps the closest."""
+    x0, y0, nx, ny, order, start = _buckets(bx, by, cell)
+    best = np.full(na * nb, np.inf)
+    bi = np.full(na * nb, -1, np.int64)
+    bj = np.full(na * nb, -1, np.int64)
+    r2 = r * r
+    for i in range(ax.shape[0]):
+        x = ax[i]
+        y = ay[i]
+        cx = int(math.floor((x - x0) / cell))
+        cy = int(math.floor((y - y0) / cell))
+        for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
+            for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
+                c = gy * nx + gx
+                for t in range(start[c], start[c + 1]):
+                    j = order[t]
+                    dx = x - bx[j]
+                    dy = y - by[j]
+                    d2 = dx * dx + dy * dy
+                    if d2 <= r2:
+                        d = math.sqrt(d2)
+                        key = ag[i] * nb + bg[j]
+                        if d < best[key] or (d == best[key] and (
+                                i < bi[key] or (i == bi[key] and j < bj[key]))):
+                            best[key] = d
+                            bi[key] = i
+                            bj[key] = j
+    keep = np.nonzero(bi >= 0)[0]
+    return bi[keep], bj[keep], best[keep]
