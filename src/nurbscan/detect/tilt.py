@@ -86,8 +86,8 @@ def grid_tilt(image: np.ndarray) -> Tilt:
 
     Notes
     -----
-    1. The image is reduced (longer side :data:`TILT_SIDE_PX`), made grey and differentiated
-       (3 x 3 Sobel).
+    1. The image is reduced (longer side :data:`TILT_SIDE_PX`; an 8- or 16-bit one in its own
+       type), made grey (the channels' mean) and differentiated (3 x 3 Sobel).
     2. The gradient directions modulo 180 degrees, weighted by the squared magnitude, make a
        histogram of 1-degree bins, smoothed (circular, sigma 2 degrees); its highest peak and
        the highest at least :data:`MODE_SEPARATION_DEG` from it are the families' normals
@@ -100,16 +100,20 @@ def grid_tilt(image: np.ndarray) -> Tilt:
     a = np.asarray(image)
     if a.ndim not in (2, 3) or a.dtype.kind not in "buif" or min(a.shape[:2]) < 3:
         return Tilt(0.0, 45.0, 0.0)  # not an image: the detector's first stage says why
+    h, w = a.shape[:2]
+    scale = TILT_SIDE_PX / max(h, w)
+    small = (max(1, round(w * scale)), max(1, round(h * scale)))
     if a.ndim == 3 and a.dtype in (np.uint8, np.uint16) and a.shape[2] <= 4:
+        if scale < 1.0:  # reduced first, in its own type (8 instead of 40 ms at 7.1 MP)
+            a, scale = cv2.resize(np.ascontiguousarray(a), small,
+                                  interpolation=cv2.INTER_AREA), 1.0
+            a = a.reshape(small[1], small[0], -1)
         a = _channel_mean(a)
     elif a.ndim == 3:
         a = a.mean(axis=2, dtype=np.float32)
     a = a.astype(np.float32, copy=False)
-    h, w = a.shape[:2]
-    scale = TILT_SIDE_PX / max(h, w)
     if scale < 1.0:
-        a = cv2.resize(a, (max(1, round(w * scale)), max(1, round(h * scale))),
-                       interpolation=cv2.INTER_AREA)
+        a = cv2.resize(a, small, interpolation=cv2.INTER_AREA)
     gx = cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3)
     m2 = (gx.astype(np.float64) ** 2 + gy.astype(np.float64) ** 2).ravel()
