@@ -40,6 +40,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
@@ -735,17 +736,36 @@ def _data_ranges(lines, a: float, b: float, reach: float, max_gap: float = np.in
             memo[keys[i]] = ws[i][np.linalg.norm(P - lines[i].points[sel[i]], axis=1)
                                   <= max_res]
         ws = [memo[keys[i]] if k >= 0 else None for i, k in enumerate(ks)]
+    has = [w is not None for w in ws]
+    cat = [w for w in ws if w is not None]
+    sizes = np.array([len(w) for w in cat], np.int64)
+    ext = _gapless_reach(np.concatenate(cat) if cat else np.zeros(0),
+                         np.r_[0, np.cumsum(sizes)].astype(np.int64), float(a), float(b),
+                         float(max_gap))
     out = np.empty((len(lines), 2))
-    for i, w in enumerate(ws):
-        if w is None:
-            out[i] = a, b
-            continue
-        ext = []
-        for ahead in (np.sort(a - w[w < a]), np.sort(w[w > b] - b)):
-            far = np.diff(np.r_[0.0, ahead]) > max_gap
-            n = int(np.argmax(far)) if far.any() else len(ahead)
-            ext.append(float(ahead[n - 1]) if n else 0.0)
-        out[i] = a - ext[0], b + ext[1]
+    out[:, 0], out[:, 1] = a, b
+    out[has, 0] = a - ext[:, 0]
+    out[has, 1] = b + ext[:, 1]
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _gapless_reach(w, bounds, a, b, max_gap):
+    """Per sample set ``w[bounds[k]:bounds[k + 1]]``, how far (px) its samples below ``a``
+    and above ``b`` reach without a step over ``max_gap`` (the first from ``a``, ``b``
+    themselves): (K, 2). The same numbers as sorting ``a - w`` and ``w - b`` and cutting at
+    the first step over ``max_gap``."""
+    out = np.zeros((len(bounds) - 1, 2))
+    for k in range(len(bounds) - 1):
+        v = w[bounds[k]:bounds[k + 1]]
+        for side in range(2):
+            ahead = np.sort(a - v[v < a]) if side == 0 else np.sort(v[v > b] - b)
+            prev = 0.0
+            for t in range(len(ahead)):
+                if ahead[t] - prev > max_gap:
+                    break
+                out[k, side] = ahead[t]
+                prev = ahead[t]
     return out
 
 
