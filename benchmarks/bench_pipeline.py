@@ -26,6 +26,10 @@
   max over curves and patches, beside the paper's; rig calibrated from the simulated images)
   with its coverage.
 
+* **against the old code** (with ``$NURBSCAN_BENCH_OLD_SRC``, the ``src`` folder of another
+  version): detection and image-to-Gordon of the two, called alternately in one process
+  (``speedup.py``), and the ratio old / new.
+
 ``$NURBSCAN_BENCH_QUICK=1`` divides every image size by 4 in pixels (development runs).
 """
 
@@ -322,8 +326,23 @@ def bench() -> dict:
         print(f"[bench_pipeline] view scaling done {time.perf_counter() - t0:.0f} s",
               file=sys.stderr, flush=True)
         res["whole demo"] = whole_demo(tmp)
+        if os.environ.get("NURBSCAN_BENCH_OLD_SRC"):
+            res["against the old code"] = against_old(os.environ["NURBSCAN_BENCH_OLD_SRC"])
         res["benchmark wall time (s)"] = round(time.perf_counter() - t0, 1)
         return res
+
+
+def against_old(src: str) -> dict:
+    """Detection and image-to-Gordon of this code and of the version in ``src``, alternately
+    in one fresh process (``speedup.py``): medians and the ratio old / new."""
+    import json
+    import subprocess
+
+    run = subprocess.run([sys.executable, str(Path(__file__).resolve().parent / "speedup.py"),
+                          "--old", src, "--json"], capture_output=True, text=True, check=True)
+    out = json.loads(run.stdout.strip().splitlines()[-1])
+    out["old"] = src
+    return out
 
 
 if __name__ == "__main__":
