@@ -17,9 +17,9 @@ for horizontal ones); chains shorter than ``min_length`` points are dropped.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
-from ._pick import transposed
 from .decode import small_ints
 from .edges import EdgePoints
 
@@ -154,70 +154,97 @@ def _window_fit(along: np.ndarray, across: np.ndarray, line: np.ndarray, offs: n
     given), weighted by ``weight`` (M,) (default 1) (:func:`fit_lines`). Returns c0, c1 (M,),
     the weight sums sw (M,) (the number of points without ``weight``) and the weights
     (M, len(offs)); with ``at`` (Q,) int, for the points i in ``at`` only ((Q,), (Q, K): the
-    same numbers, each point's fit is its own)."""
+    same numbers, each point's fit is its own). The same numbers as :func:`fit_lines` over
+    the (Q, K) windows, bit for bit: a compiled loop over the points (numba) that sums in
+    numpy's order (:func:`_row_sums`)."""
     n = len(along)
     i = np.arange(n) if at is None else np.asarray(at, np.int64)
     counts = np.bincount(line)
     stop = np.cumsum(counts)
     first = (stop - counts)[line[i]]
     last = stop[line[i]] - 1
-    q, k = len(i), len(offs)
-    c0, c1, sw = np.empty(q), np.empty(q), np.empty(q)
-    wts = np.empty((q, k))
-    # in blocks of points, offset by offset ((K, B) rows of the block's length: numpy's inner
-    # loops run over the points; the temporaries stay in the cache), each point's fit its
-    # own: the same numbers as fit_lines over (Q, K) rows
-    for b in range(0, q, _BLOCK):
-        r = slice(b, b + _BLOCK)
-        ib = i[r]
-        j = offs[:, None] + ib[None, :]
-        inside = (j >= first[None, r]) & (j <= last[None, r])
-        np.clip(j, 0, n - 1, out=j)
-        if use is not None:
-            inside &= use[j]
-        dt = along[j]
-        dt -= along[ib][None, :]
-        if reach is not None:
-            inside &= np.abs(dt) <= reach
-        w = inside.astype(np.float64)
-        if weight is not None:
-            w *= weight[j]
-        c0[r], c1[r], sw[r] = _fit_lines_t(dt, across[j], w)
-        wts[r] = transposed(w)
-    return c0, c1, sw, wts
+    return _window_fits(np.asarray(along, np.float64), np.asarray(across, np.float64),
+                        first, last, i, np.asarray(offs, np.int64),
+                        np.zeros(1, np.bool_) if use is None else np.asarray(use, np.bool_),
+                        use is not None,
+                        np.zeros(1) if weight is None else np.asarray(weight, np.float64),
+                        weight is not None, 0.0 if reach is None else float(reach),
+                        reach is not None)
 
 
-#: Points per block of :func:`_window_fit`.
-_BLOCK = 8192
-
-
-def _fit_lines_t(t: np.ndarray, v: np.ndarray, wts: np.ndarray):
-    """:func:`fit_lines` of the (G, K) arrays ``t.T``, ``v.T``, ``wts.T`` (C-contiguous) from
-    their (K, G) transposes, with the same numbers (:func:`_row_sums`)."""
-    return _line_fit(t, v, wts, _row_sums)
-
-
-def _row_sums(a: np.ndarray) -> np.ndarray:
-    """``np.sum(a.T, axis=1)`` of a C-contiguous copy of ``a.T`` for a (K, G) float64 array,
-    K <= 128, in numpy's order (its reduction along the contiguous axis: 0 plus the
-    pairwise sum, which adds up to 8 elements one by one and more in 8 running sums, then
-    added as ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7)) and the rest one by one), on
-    rows of G: numpy's inner loops run over G instead of K."""
-    k = len(a)
+@numba.njit(cache=True, nogil=True, inline="always")
+def _pairwise_sum(a, k):
+    """``a[:k].sum()`` of float64 in numpy's order for k <= 128 (0 plus the pairwise sum: up
+    to 8 elements one by one; more in 8 running sums, added as ((r0 + r1) + (r2 + r3)) +
+    ((r4 + r5) + (r6 + r7)), then the rest one by one)."""
     if k < 8:
         res = a[0] + 0.0
         for c in range(1, k):
             res += a[c]
         return res
-    r = a[:8].copy()
-    for c in range(8, k - k % 8, 8):
-        r += a[c:c + 8]
-    p = r[0::2] + r[1::2]  # r0 + r1, r2 + r3, r4 + r5, r6 + r7
-    p = p[0::2] + p[1::2]
-    res = p[0] + p[1]
+    r0, r1, r2, r3, r4, r5, r6, r7 = a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7]
+    c = 8
+    while c < k - k % 8:
+        r0 += a[c]
+        r1 += a[c + 1]
+        r2 += a[c + 2]
+        r3 += a[c + 3]
+        r4 += a[c + 4]
+        r5 += a[c + 5]
+        r6 += a[c + 6]
+        r7 += a[c + 7]
+        c += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
     for c in range(k - k % 8, k):
         res += a[c]
     return res + 0.0
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _window_fits(along, across, first, last, i, offs, use, has_use, weight, has_weight,
+                 reach, has_reach):
+    """:func:`_window_fit`'s loop: per point its window's weights and the five sums of
+    :func:`_line_fit`, each product formed as there."""
+    q, k, n = len(i), len(offs), len(along)
+    c0, c1, sw = np.empty(q), np.empty(q), np.empty(q)
+    wts = np.empty((q, k))
+    w, wt, wtt, wv, wtv = np.empty(k), np.empty(k), np.empty(k), np.empty(k), np.empty(k)
+    for p in range(q):
+        ip = i[p]
+        for c in range(k):
+            j = ip + offs[c]
+            inside = first[p] <= j <= last[p]
+            j = min(max(j, 0), n - 1)
+            if has_use:
+                inside = inside and use[j]
+            dt = along[j] - along[ip]
+            if has_reach:
+                inside = inside and abs(dt) <= reach
+            ww = 1.0 if inside else 0.0
+            if has_weight:
+                ww *= weight[j]
+            v = across[j]
+            w[c] = ww
+            wt[c] = ww * dt
+            wtt[c] = wt[c] * dt
+            wv[c] = ww * v
+            wtv[c] = wt[c] * v
+            wts[p, c] = ww
+        s_w, s_t = _pairwise_sum(w, k), _pairwise_sum(wt, k)
+        s_tt, s_v, s_tv = _pairwise_sum(wtt, k), _pairwise_sum(wv, k), _pairwise_sum(wtv, k)
+        det = s_w * s_tt - s_t * s_t
+        slope = (s_w * s_tv - s_t * s_v) / det
+        c0[p] = (s_v - slope * s_t) / s_w
+        c1[p] = slope
+        sw[p] = s_w
+    return c0, c1, sw, wts
+
+
+def _row_sums(a: np.ndarray) -> np.ndarray:
+    """``np.sum(a.T, axis=1)`` of a (K, G) float64 array, K <= 128, in numpy's order
+    (:func:`_pairwise_sum` of each column; the check that it is numpy's)."""
+    a = np.ascontiguousarray(np.asarray(a, np.float64).T)
+    return np.array([_pairwise_sum(row, len(row)) for row in a])
 
 
 def chain_slope(along: np.ndarray, across: np.ndarray, line: np.ndarray, reach: int = 4
