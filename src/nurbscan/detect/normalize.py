@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 
 from ..errors import NurbscanError
@@ -207,12 +208,11 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
         ch = cv2.subtract(chans[c], dark, dst=chans[c] if in_place else None)
         if wp is None:
             return ch, None, None
-        # the blurred white minus the dark level, in place (no fresh 28 MB)
+        # the blurred white minus the dark level, lit where over the floor, and 1 / max(d,
+        # floor), in place (one pass: _inverse_denominator)
         d = cv2.sepFilter2D(wp[c], cv2.CV_32F, g, g, borderType=cv2.BORDER_REFLECT_101)
-        d = cv2.subtract(d, dark, dst=d)
-        lit = d > floor
-        np.maximum(d, np.float32(floor), out=d)  # 1 / max(d, floor), in place
-        np.reciprocal(d, out=d)
+        lit = np.empty(d.shape, np.bool_)
+        _inverse_denominator(d, dark, np.float32(floor), lit)
         return ch, d, lit
 
     parts = parallel_map(channel, range(3))
@@ -251,6 +251,20 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
     half = len(signal) // 2
     parallel_map(products, (slice(0, half), slice(half, len(signal))))
     return Normalised(signal=signal, valid=valid, channels=chans, inverse=inv)
+
+
+@numba.njit(cache=True, nogil=True)
+def _inverse_denominator(d, dark, floor, lit):
+    """In place over (H, W) float32 planes: ``d - dark`` is the denominator, ``lit`` (bool)
+    where it exceeds ``floor``, and ``d`` becomes ``1 / max(d - dark, floor)``: the float32
+    operations of ``cv2.subtract``, ``>``, ``np.maximum`` and ``np.reciprocal`` (NaN stays
+    NaN), in one pass over the image instead of four."""
+    one = np.float32(1.0)
+    for r in range(d.shape[0]):
+        for c in range(d.shape[1]):
+            v = d[r, c] - dark[r, c]
+            lit[r, c] = v > floor
+            d[r, c] = one / (floor if v < floor else v)
 
 
 def edge_signal(norm: np.ndarray) -> np.ndarray:
