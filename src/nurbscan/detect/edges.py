@@ -47,6 +47,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from .._jit import njit
 from ..errors import NurbscanError
 from ._pick import pick
 from ._threads import parallel_map
@@ -180,6 +181,41 @@ def _subpixel(lm: np.ndarray, l0: np.ndarray, lp: np.ndarray,
     with np.errstate(divide="ignore", invalid="ignore"):
         d = 0.5 * (lm - lp) / den
     return np.clip(np.nan_to_num(d, nan=0.0), -limit, limit)
+
+
+@njit(cache=True, nogil=True)
+def _family_maxima(gx, gy, ax, ay, mask, axis, combine=True):
+    """The magnitude (H, W) float32 of a family's derivative ``gx ax + gy ay`` (of ``gx``
+    without ``combine``) and the flat indices (ascending) of the ``mask`` pixels where it is
+    a maximum along the row (``axis`` 0: above the left neighbour's, at least the right
+    one's; the first and last columns left out) or the column (1): the float32 operations of
+    ``np.abs(gx * ax + gy * ay)`` and the comparisons, without the image-sized derivative
+    and masks."""
+    h, w = gx.shape
+    amp = np.empty((h, w), np.float32)
+    for r in range(h):
+        for c in range(w):
+            amp[r, c] = abs(gx[r, c] * ax[r, c] + gy[r, c] * ay[r, c]) if combine else abs(
+                gx[r, c])
+    count = 0
+    out = np.empty(max(h * w // 16, 16), np.int64)
+    for r in range(axis, h - axis):
+        for c in range(1 - axis, w - 1 + axis):
+            if not mask[r, c]:
+                continue
+            a = amp[r, c]
+            if axis == 0:
+                peak = a > amp[r, c - 1] and a >= amp[r, c + 1]
+            else:
+                peak = a > amp[r - 1, c] and a >= amp[r + 1, c]
+            if peak:
+                if count == len(out):
+                    grown = np.empty(2 * len(out), np.int64)
+                    grown[:count] = out
+                    out = grown
+                out[count] = r * w + c
+                count += 1
+    return amp, out[:count].copy()
 
 
 def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float = 0.06,
@@ -325,24 +361,17 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
 
     def family(job):  # one family's points (the two side by side: _threads)
         axis, mask, a_own, a_other, cls0 = job
-        # the family's own gradient component (the plain derivative without the operators)
+        # the magnitude of the family's own gradient component (the plain derivative without
+        # the operators) and its maxima along the row (vertical) or column (horizontal), as
+        # flat pixels (one index for the many gathers); the component itself at those only
         if oblique_ops:
-            der = gx * a_own[0]
-            der += gy * a_own[1]
+            amp, fl = _family_maxima(gx, gy, a_own[0], a_own[1], mask, axis)
+            der = _at(gx, fl) * _at(a_own[0], fl) + _at(gy, fl) * _at(a_own[1], fl)
         else:
-            der = gx if axis == 0 else gy
-        amp = np.abs(der)
-        # maxima of the family's derivative along the row (vertical) or column (horizontal)
-        c = np.zeros((h, w), bool)
-        if axis == 0:
-            c[:, 1:-1] = (mask[:, 1:-1] & (amp[:, 1:-1] > amp[:, :-2])
-                          & (amp[:, 1:-1] >= amp[:, 2:]))
-        else:
-            c[1:-1, :] = (mask[1:-1, :] & (amp[1:-1, :] > amp[:-2, :])
-                          & (amp[1:-1, :] >= amp[2:, :]))
-        fl = np.flatnonzero(c)  # (flat pixels: one index for the many gathers)
+            g = gx if axis == 0 else gy
+            amp, fl = _family_maxima(g, g, g, g, mask, axis, False)
+            der = _at(g, fl)
         iy, ix = np.divmod(fl, w)
-        del c
         step = (0, 1) if axis == 0 else (1, 0)  # (dy, dx) of one step along the search axis
         lm, l0, lp = (ln(_at(amp, fl + k * (step[0] * w + step[1]))) for k in (-1, 0, 1))
         sl, limit = np.zeros(len(iy)), 0.5
@@ -361,7 +390,7 @@ def detect_edge_points(signal: np.ndarray, sigma: float = 1.0, threshold: float 
         jx, jy = ix + ox, iy + oy  # (the image's pixels)
         x, y = (jx + d, jy + d * sl) if axis == 0 else (jx + d * sl, jy + d)
         ratio = vratio(fl) if axis == 0 else 1.0 / np.maximum(vratio(fl), 1e-10)
-        return (x, y, jx, jy, np.where(_at(der, fl) > 0, cls0, cls0 + 1), _at(amp, fl),
+        return (x, y, jx, jy, np.where(der > 0, cls0, cls0 + 1), _at(amp, fl),
                 _at(gx, fl), _at(gy, fl), ratio, operator(a_own, axis, fl), sl)
 
     out = parallel_map(family, ((0, vmask, av, ah, 0), (1, hmask, ah, av, 2)))

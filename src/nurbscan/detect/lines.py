@@ -17,9 +17,9 @@ for horizontal ones); chains shorter than ``min_length`` points are dropped.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from .._jit import njit
 from .decode import small_ints
 from .edges import EdgePoints
 
@@ -172,7 +172,7 @@ def _window_fit(along: np.ndarray, across: np.ndarray, line: np.ndarray, offs: n
                         reach is not None)
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _pairwise_sum(a, k):
     """``a[:k].sum()`` of float64 in numpy's order for k <= 128 (0 plus the pairwise sum: up
     to 8 elements one by one; more in 8 running sums, added as ((r0 + r1) + (r2 + r3)) +
@@ -200,7 +200,7 @@ def _pairwise_sum(a, k):
     return res + 0.0
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _window_fits(along, across, first, last, i, offs, use, has_use, weight, has_weight,
                  reach, has_reach):
     """:func:`_window_fit`'s loop: per point its window's weights and the five sums of

@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 from scipy.spatial import cKDTree
+
+from .._jit import njit
 
 __all__ = ["nearest_within"]
 
@@ -85,7 +86,7 @@ def nearest_within(points: np.ndarray, queries: np.ndarray, k: int,
                        queries[:, 1].copy(), int(k), float(radius), float(cell))
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _buckets(sx, sy, cell):
     """The points in a grid of ``cell`` px from their least coordinates: the grid's origin
     ``x0, y0`` and size ``nx, ny``, the points by cell (a stable sort) and each cell's first
@@ -107,7 +108,7 @@ def _buckets(sx, sy, cell):
     return x0, y0, nx, ny, order, start
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _scan_cell(c, start, px, py, order, x, y, r2, k, bd, bi, cnt, worst):
     """Offer cell ``c``'s points to the sorted list ``bd`` (squared distances), ``bi``."""
     for t in range(start[c], start[c + 1]):
@@ -132,7 +133,7 @@ def _scan_cell(c, start, px, py, order, x, y, r2, k, bd, bi, cnt, worst):
     return cnt, worst
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _grid_query(sx, sy, qx, qy, k, r, cell):
     """:func:`nearest_within` on a grid of ``cell`` px: bucket the points (a counting sort by
     cell), then per query visit the cells ring by ring, keeping the ``k`` nearest by
@@ -236,7 +237,7 @@ def _closest_pairs_tree(a, ia, b, ib, nb: int, radius: float):
     return i[o][first], j[o][first], d[o][first]
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _closest_pairs_grid(ax, ay, ag, bx, by, bg, na, nb, r, cell):
     """:func:`closest_pairs` on a grid of ``cell`` (>= ``r``) px: each ``a`` point meets the
     ``b`` points of the 3 x 3 cells around its own; a table of ``na`` x ``nb`` group pairs

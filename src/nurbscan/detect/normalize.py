@@ -20,9 +20,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import cv2
-import numba
 import numpy as np
 
+from .._jit import njit
 from ..errors import NurbscanError
 from ._threads import parallel_map
 
@@ -253,7 +253,7 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
     return Normalised(signal=signal, valid=valid, channels=chans, inverse=inv)
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _inverse_denominator(d, dark, floor, lit):
     """In place over (H, W) float32 planes: ``d - dark`` is the denominator, ``lit`` (bool)
     where it exceeds ``floor``, and ``d`` becomes ``1 / max(d - dark, floor)``: the float32

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-import numba
 import numpy as np
 
+from .._jit import njit
 from ..nurbs.basis import basis_functions, find_span
 
 
@@ -53,7 +53,7 @@ def _solve_group(first, Nb, Y, w, local, C, m, smooth):
     return np.linalg.solve(M, rhs)
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _normal_equations(first, Nb, Y, w, local, C, m):
     """The chains' normal matrices ``sum_n w_n N_n N_n^T`` (C, m, m) and right-hand sides
     ``sum_n w_n N_n y_n`` (C, m, d), each entry accumulated over the points in their order
@@ -73,7 +73,7 @@ def _normal_equations(first, Nb, Y, w, local, C, m):
     return M, rhs
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _lower_medians(res, starts):
     """Per chain (the contiguous runs of ``res`` from ``starts``), the lower median: element
     ``(n - 1) // 2`` of the run sorted, NaN last (as ``np.lexsort((res, chain))`` orders)."""

@@ -40,10 +40,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
+from .._jit import njit
 from ..nurbs import NurbsCurve, NurbsSurface
 from ..nurbs.basis import averaging_knots, basis_matrix
 from ..nurbs.curve import evaluate_pieces
@@ -749,7 +749,7 @@ def _data_ranges(lines, a: float, b: float, reach: float, max_gap: float = np.in
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _gapless_reach(w, bounds, a, b, max_gap):
     """Per sample set ``w[bounds[k]:bounds[k + 1]]``, how far (px) its samples below ``a``
     and above ``b`` reach without a step over ``max_gap`` (the first from ``a``, ``b``
