@@ -71,35 +71,27 @@ class Normalised:
     valid : ndarray (H, W) bool
         Pixels whose denominator is above the floor (lit by the projector).
     channels : tuple of 3 ndarray (H, W) float32
-        The linear image's channels minus the dark level.
-    inverse : tuple of 3 ndarray (H, W) float32, or one (H, W) array
-        1 / denominator per channel (white image) or common to all channels (envelope).
+        The normalised channels: the linear image's channels minus the dark level, times
+        ``1 / denominator`` (float32 products, as the signal's terms).
     """
 
     signal: np.ndarray
     valid: np.ndarray
     channels: tuple
-    inverse: tuple
-
-    def _inverses(self) -> tuple:
-        """The three channels' ``1 / denominator`` planes (one shared plane repeated)."""
-        return self.inverse if len(self.inverse) == 3 else self.inverse * 3
 
     def colour_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Normalised colour (N, 3) at points (x, y) px (bilinear)."""
         from .decode import bilinear_at, bilinear_taps
 
-        taps = bilinear_taps(self.signal.shape, x, y)  # (the same for the six planes)
-        return np.stack([bilinear_at(c, taps) * bilinear_at(i, taps)
-                         for c, i in zip(self.channels, self._inverses(), strict=True)], axis=1)
+        taps = bilinear_taps(self.signal.shape, x, y)  # (the same for the three planes)
+        return np.stack([bilinear_at(c, taps) for c in self.channels], axis=1)
 
     def planes(self) -> list[np.ndarray]:
         """The three normalised channels, (H, W) float32 each."""
-        return [c * i for c, i in zip(self.channels, self._inverses(), strict=True)]
+        return list(self.channels)
 
     def lazy_planes(self) -> _LazyPlanes:
-        """The three normalised channels as a sequence that computes each when indexed (one
-        image-sized array at a time instead of three)."""
+        """The three normalised channels as a sequence of windows (:meth:`_LazyPlanes.crop`)."""
         return _LazyPlanes(self)
 
     def image(self) -> np.ndarray:
@@ -108,8 +100,8 @@ class Normalised:
 
 
 class _LazyPlanes:
-    """:meth:`Normalised.planes`, each plane computed when indexed (over the window
-    ``(rows, cols)`` of slices only, with :meth:`crop`)."""
+    """:meth:`Normalised.planes`, each plane over the window ``(rows, cols)`` of slices only
+    (with :meth:`crop`), taken when indexed."""
 
     def __init__(self, nrm: Normalised, window: tuple = (slice(None), slice(None))):
         self._nrm, self._window = nrm, window
@@ -132,8 +124,7 @@ class _LazyPlanes:
     def __getitem__(self, c: int) -> np.ndarray:
         if not -3 <= c < 3:
             raise IndexError(c)
-        w = self._window
-        return self._nrm.channels[c][w] * self._nrm._inverses()[c][w]
+        return self._nrm.channels[c][self._window]
 
 
 def _planes(image, what: str) -> tuple:
@@ -175,8 +166,9 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
         for a JPEG with subsampled colour the luma weights (``LUMA_601``) leave out most of
         the blurred colour.
     overwrite : bool
-        With a white image, the image's float32 planes may be overwritten (the caller's
-        linearised copies: saves three image-sized arrays).
+        With a white image, the float32 planes of the image and of the white image may be
+        overwritten (the caller's linearised copies: saves six image-sized arrays); a white
+        image given as a list of planes is emptied.
 
     Returns
     -------
@@ -187,10 +179,13 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
     # dark level: local minimum of the grid image (ambient light in the black gaps)
     dark = smooth_field(cv2.min(cv2.min(chans[0], chans[1]), chans[2]), window / 3, "min",
                         window)
+    field = {"dark": dark}  # (the channels' jobs read it here: freed before the products)
     in_place = overwrite and white is not None  # (chans_in is needed without a white image)
     wp = None
     if white is not None:
-        wp = _planes(white, "white image")
+        wp = list(_planes(white, "white image"))
+        if in_place and isinstance(white, list):
+            white.clear()  # (the caller's references: each plane is freed after its blur)
         if wp[0].shape != chans[0].shape:
             raise NurbscanError(
                 f"white image: size {wp[0].shape[1]}x{wp[0].shape[0]} does not match the grid "
@@ -205,14 +200,18 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
     g = cv2.getGaussianKernel(7, 0.7, cv2.CV_32F)
 
     def channel(c):  # one channel's part (the channels side by side: _threads)
-        ch = cv2.subtract(chans[c], dark, dst=chans[c] if in_place else None)
+        ch = cv2.subtract(chans[c], field["dark"], dst=chans[c] if in_place else None)
         if wp is None:
             return ch, None, None
         # the blurred white minus the dark level, lit where over the floor, and 1 / max(d,
         # floor), in place (one pass: _inverse_denominator)
-        d = cv2.sepFilter2D(wp[c], cv2.CV_32F, g, g, borderType=cv2.BORDER_REFLECT_101)
+        # (in the white plane's own buffer where it is this function's to overwrite: the
+        # same values, one image-sized plane fewer per channel)
+        d = cv2.sepFilter2D(wp[c], cv2.CV_32F, g, g, dst=wp[c] if in_place else None,
+                            borderType=cv2.BORDER_REFLECT_101)
+        wp[c] = None
         lit = np.empty(d.shape, np.bool_)
-        _inverse_denominator(d, dark, np.float32(floor), lit)
+        _inverse_denominator(d, field["dark"], np.float32(floor), lit)
         return ch, d, lit
 
     parts = parallel_map(channel, range(3))
@@ -227,7 +226,8 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
         den = env - dark
         valid = den > floor
         inv = (1.0 / np.maximum(den, floor),)
-    del parts
+    del parts, dark  # (one image-sized plane fewer below)
+    field.clear()
     inv3 = inv if len(inv) == 3 else inv * 3
     # signal = sum_c chans_c * (inv_c * wts_c), the terms after the first in a buffer of
     # 32 rows (it stays in the cache; a weight of 1 multiplies exactly: left out); the two
@@ -250,7 +250,12 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
 
     half = len(signal) // 2
     parallel_map(products, (slice(0, half), slice(half, len(signal))))
-    return Normalised(signal=signal, valid=valid, channels=chans, inverse=inv)
+    # the normalised channels in place of the channels (the inverse planes are freed on
+    # return: three image-sized planes fewer for the rest of the detection)
+    for c in range(3):
+        np.multiply(chans[c], inv3[c], out=chans[c])
+
+    return Normalised(signal=signal, valid=valid, channels=chans)
 
 
 @njit(cache=True, nogil=True)

@@ -82,6 +82,7 @@ def prepare(image, white, pattern, options, sigma: float | None = None,
     if np.mean(sub > 0.98**gamma) > 0.5:
         raise NoGrid("image: overexposed (more than half the pixels saturated), no grid found",
                      (w, h))
+    wl = None if wl is None else list(wl)  # (normalize empties it: each plane freed after use)
     nrm = normalize(lin, wl, window=options.window,
                     weights=LUMA_601 if options.chroma_subsampled else None, overwrite=True)
     del lin, wl
