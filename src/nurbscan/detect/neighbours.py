@@ -1,17 +1,21 @@
-"""The ``k`` nearest of a set of image points within a radius, for each of many query points.
+"""Neighbours among image points on a bucket grid: the ``k`` nearest within a radius
+(:func:`nearest_within`) and, per pair of point groups, the closest pair within a radius
+(:func:`closest_pairs`).
 
-This is :meth:`scipy.spatial.cKDTree.query` with ``k`` and ``distance_upper_bound``, for
-points in the image plane, by a bucket grid; it returns the same neighbours in the same order
-(by distance; among equal distances the lower index first).
+They are :meth:`scipy.spatial.cKDTree.query` with ``k`` and ``distance_upper_bound``, and
+``cKDTree.sparse_distance_matrix`` reduced per group pair, for points in the image plane, with
+the same answers (ties: the lower index first).
 
 Why by hand: the family and epipolar planes (:func:`nurbscan.detect.families._plane_at`) ask
 for the 32 nearest of 5 x 10^4 labelled edge points within two pitches around each of 2 x 10^4
-points, four times per 7.1 MP view with a rig. cKDTree, being general, spent 0.077 s per call
-there (the largest single cost of detection with a rig); the grid spends 0.028 s. Edge points
-cover the image densely, so a query visits the grid's cells ring by ring around its own and
-stops once the next ring lies farther than the ``k``-th neighbour found. The loops are compiled
-by numba (``cache=True``: once per installation, on first use), and release the GIL, so the
-two edge families run side by side (:mod:`nurbscan.detect._threads`).
+points, four times per 7.1 MP view with a rig; cKDTree, being general, spent 0.077 s per call
+there (the largest single cost of detection with a rig), the grid 0.028 s. The intersections
+listed 2.5 x 10^5 close pairs of points only to keep one per pair of lines (0.076 -> 0.048 s
+for the stage). Edge points cover the image densely, so a query visits the grid's cells ring by
+ring around its own and stops once the next ring lies farther than the ``k``-th neighbour
+found. The loops are compiled by numba (:mod:`nurbscan._jit`: on first use, cached on disk)
+and release the GIL, so the two edge families run side by side
+(:mod:`nurbscan.detect._threads`).
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ from scipy.spatial import cKDTree
 
 from .._jit import njit
 
-__all__ = ["nearest_within"]
+__all__ = ["closest_pairs", "nearest_within"]
 
 #: Grid cell size as a share of the search radius (8 cells per radius; 4 and 16 were 10 and
 #: 20 % slower on the bench view).
