@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import importlib.util
 import json
 import shutil
 import statistics
@@ -30,13 +29,6 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-
-
-def _load(name: str, path: Path):
-    spec = importlib.util.spec_from_file_location(name, path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def _tasks(pkg: str, grid, white):
@@ -63,8 +55,9 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--calls", type=int, default=5, help="warm calls of each version and task")
     ap.add_argument("--json", action="store_true", help="print one JSON line")
     args = ap.parse_args(argv)
-    bd = _load("bench_detect", HERE / "bench_detect.py")
-    dh = _load("detect_hash", HERE / "detect_hash.py")
+    sys.path.insert(0, str(HERE))
+    import bench_detect as bd
+    import detect_hash as dh
     tmp = Path(tempfile.mkdtemp())
     try:
         shutil.copytree(args.old / "nurbscan", tmp / "nurbscan_old")
