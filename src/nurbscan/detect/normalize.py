@@ -203,23 +203,25 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
         ch = cv2.subtract(chans[c], field["dark"], dst=chans[c] if in_place else None)
         if wp is None:
             return ch, None, None
-        # the blurred white minus the dark level, lit where over the floor, and 1 / max(d,
-        # floor), in place (one pass: _inverse_denominator)
-        # (in the white plane's own buffer where it is this function's to overwrite: the
-        # same values, one image-sized plane fewer per channel)
+        # the denominator: the blurred white minus the dark level (in the white plane's own
+        # buffer where it is this function's to overwrite: one image-sized plane fewer per
+        # channel)
         d = cv2.sepFilter2D(wp[c], cv2.CV_32F, g, g, dst=wp[c] if in_place else None,
                             borderType=cv2.BORDER_REFLECT_101)
         wp[c] = None
-        lit = np.empty(d.shape, np.bool_)
-        _inverse_denominator(d, field["dark"], np.float32(floor), lit)
-        return ch, d, lit
+        return ch, cv2.subtract(d, field["dark"], dst=d), None
 
     parts = parallel_map(channel, range(3))
     chans = tuple(ch for ch, _, _ in parts)
     if wp is not None:
-        # max over the channels > floor, without the image-sized maxima
-        valid = (parts[0][2] | parts[1][2]) | parts[2][2]
-        inv = tuple(d for _, d, _ in parts)
+        # lit where any channel's denominator is over the floor (one pass, no mask per
+        # channel), then each denominator d becomes 1 / max(d, floor) in place
+        den = [d for _, d, _ in parts]
+        valid = np.empty(den[0].shape, np.bool_)
+        _any_over(den[0], den[1], den[2], np.float32(floor), valid)
+        parallel_map(lambda d: _inverse_floor(d, np.float32(floor)), den)
+        inv = tuple(den)
+        del den
     else:
         env = smooth_field(cv2.max(cv2.max(chans_in[0], chans_in[1]), chans_in[2]),
                            window / 3, "max", window)
@@ -259,16 +261,22 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
 
 
 @njit(cache=True, nogil=True)
-def _inverse_denominator(d, dark, floor, lit):
-    """In place over (H, W) float32 planes: ``d - dark`` is the denominator, ``lit`` (bool)
-    where it exceeds ``floor``, and ``d`` becomes ``1 / max(d - dark, floor)``: the float32
-    operations of ``cv2.subtract``, ``>``, ``np.maximum`` and ``np.reciprocal`` (NaN stays
-    NaN), in one pass over the image instead of four."""
+def _any_over(d0, d1, d2, floor, out):
+    """``out`` (H, W) bool: ``((d0 > floor) | (d1 > floor)) | (d2 > floor)`` over float32
+    planes, in one pass."""
+    for r in range(d0.shape[0]):
+        for c in range(d0.shape[1]):
+            out[r, c] = d0[r, c] > floor or d1[r, c] > floor or d2[r, c] > floor
+
+
+@njit(cache=True, nogil=True)
+def _inverse_floor(d, floor):
+    """In place over an (H, W) float32 plane: ``1 / max(d, floor)``, the float32 operations
+    of ``np.maximum`` and ``np.reciprocal`` (NaN stays NaN), in one pass."""
     one = np.float32(1.0)
     for r in range(d.shape[0]):
         for c in range(d.shape[1]):
-            v = d[r, c] - dark[r, c]
-            lit[r, c] = v > floor
+            v = d[r, c]
             d[r, c] = one / (floor if v < floor else v)
 
 
