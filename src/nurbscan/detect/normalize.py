@@ -185,7 +185,7 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
     if white is not None:
         wp = list(_planes(white, "white image"))
         if in_place and isinstance(white, list):
-            white.clear()  # (the caller's references: each plane is freed after its blur)
+            white.clear()  # (the caller's references go: its planes become the inverses)
         if wp[0].shape != chans[0].shape:
             raise NurbscanError(
                 f"white image: size {wp[0].shape[1]}x{wp[0].shape[0]} does not match the grid "
