@@ -179,7 +179,6 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
     # dark level: local minimum of the grid image (ambient light in the black gaps)
     dark = smooth_field(cv2.min(cv2.min(chans[0], chans[1]), chans[2]), window / 3, "min",
                         window)
-    field = {"dark": dark}  # (the channels' jobs read it here: freed before the products)
     in_place = overwrite and white is not None  # (chans_in is needed without a white image)
     wp = None
     if white is not None:
@@ -200,7 +199,7 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
     g = cv2.getGaussianKernel(7, 0.7, cv2.CV_32F)
 
     def channel(c):  # one channel's part (the channels side by side: _threads)
-        ch = cv2.subtract(chans[c], field["dark"], dst=chans[c] if in_place else None)
+        ch = cv2.subtract(chans[c], dark, dst=chans[c] if in_place else None)
         if wp is None:
             return ch, None, None
         # the denominator: the blurred white minus the dark level (in the white plane's own
@@ -209,7 +208,7 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
         d = cv2.sepFilter2D(wp[c], cv2.CV_32F, g, g, dst=wp[c] if in_place else None,
                             borderType=cv2.BORDER_REFLECT_101)
         wp[c] = None
-        return ch, cv2.subtract(d, field["dark"], dst=d), None
+        return ch, cv2.subtract(d, dark, dst=d), None
 
     parts = parallel_map(channel, range(3))
     chans = tuple(ch for ch, _, _ in parts)
@@ -228,8 +227,8 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
         den = env - dark
         valid = den > floor
         inv = (1.0 / np.maximum(den, floor),)
-    del parts, dark  # (one image-sized plane fewer below)
-    field.clear()
+    del parts
+    dark = None  # (freed: one image-sized plane fewer below; the channels' jobs are done)
     inv3 = inv if len(inv) == 3 else inv * 3
     # signal = sum_c chans_c * (inv_c * wts_c), the terms after the first in a buffer of
     # 32 rows (it stays in the cache; a weight of 1 multiplies exactly: left out); the two
