@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import warnings
 
+import cv2
 import numpy as np
 import pytest
 from scipy.special import ndtr
@@ -767,6 +768,85 @@ def test_normalize_channel_weights(view):
     for bad in ((1, 1), (-1, 1, 1), (0, 0, 0)):
         with pytest.raises(NurbscanError, match="weights"):
             normalize(planes, white, weights=bad)
+
+
+def _in_dark_frame(image, dtype, shape=(1400, 1800), at=(300, 400), seed=0):
+    """``image`` (H, W, 3) in [0, 1], faded out over its outer 150 px, placed at ``at``
+    (row, column) in a larger frame of dim, noisy ambient light (0-5 % of full scale), as
+    ``dtype`` camera values."""
+    rng = np.random.default_rng(seed)
+    frame = rng.uniform(0, 0.05, (*shape, 3))
+    h, w = image.shape[:2]
+    fade = np.minimum.outer(*(np.minimum(np.arange(n), np.arange(n)[::-1]) / 150
+                              for n in (h, w))).clip(0, 1)
+    frame[at[0]:at[0] + h, at[1]:at[1] + w] = np.maximum(image * fade[:, :, None], 0.05)
+    return np.round(frame * np.iinfo(dtype).max).astype(dtype)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_normalize_photograph_is_normalize_over_the_lit_window(view, dtype):
+    """normalize_photograph of a photograph lit in part of its frame equals normalize of the
+    whole linearised photograph bit for bit: every plane inside its lit window, the valid
+    mask everywhere; outside the window the planes are 0. The window holds every valid pixel
+    LIT_MARGIN px inside its border, and is a part of the frame."""
+    from nurbscan.detect.normalize import (
+        LIT_MARGIN,
+        as_float_planes,
+        lit_window,
+        normalize,
+        normalize_photograph,
+    )
+
+    g, w, _ = view
+    g, w = (_in_dark_frame(a, dtype, seed=i) for i, a in enumerate((g, w)))
+    whole = normalize(as_float_planes(g, gamma=2.2), as_float_planes(w, gamma=2.2))
+    part = normalize_photograph(g, w, gamma=2.2)
+    rows, cols = lit_window(w, 2.2, 0.03)
+    assert (rows.stop - rows.start) * (cols.stop - cols.start) < 0.7 * whole.valid.size
+    assert np.array_equal(part.valid, whole.valid) and whole.valid.sum() > 0.3 * 768 * 1024
+    vy, vx = np.nonzero(whole.valid)
+    assert vy.min() - rows.start >= LIT_MARGIN - 3 and rows.stop - vy.max() > LIT_MARGIN - 3
+    assert vx.min() - cols.start >= LIT_MARGIN - 3 and cols.stop - vx.max() > LIT_MARGIN - 3
+    for a, b in zip((part.signal, *part.channels), (whole.signal, *whole.channels),
+                    strict=True):
+        assert np.array_equal(a[rows, cols], b[rows, cols])
+        outside = np.ones(a.shape, bool)
+        outside[rows, cols] = False
+        assert not np.any(a[outside])
+
+
+def test_normalize_matches_its_formula(view):
+    """normalize (the compiled pass) against its formula in numpy float32: the channels over
+    the dark level, times 1 / max(blurred white - dark, floor), the valid mask and the
+    weighted signal (weights scaled to sum to 3)."""
+    from nurbscan.detect.normalize import as_float_planes, normalize, smooth_field
+
+    g, w, _ = view
+    planes, white = as_float_planes(g, gamma=2.2), as_float_planes(w, gamma=2.2)
+    floor = np.float32(0.03)
+    dark = smooth_field(np.minimum(np.minimum(planes[0], planes[1]), planes[2]), 31 / 3,
+                        "min", 31)
+    den = [cv2.GaussianBlur(c, (0, 0), 0.7, borderType=cv2.BORDER_REFLECT_101) - dark
+           for c in white]
+    inv = [np.float32(1) / np.maximum(d, floor) for d in den]
+    norm = [(c - dark) * i for c, i in zip(planes, inv, strict=True)]
+    wts = np.array([0.5, 2.0, 0.5], np.float32)  # (1, 4, 1) scaled to sum to 3
+    signal = ((planes[0] - dark) * (inv[0] * wts[0]) + (planes[1] - dark) * (inv[1] * wts[1])
+              ) + (planes[2] - dark) * (inv[2] * wts[2])
+    got = normalize(planes, white, floor=0.03, weights=(1, 4, 1))
+    assert np.array_equal(got.valid, (den[0] > floor) | (den[1] > floor) | (den[2] > floor))
+    assert all(np.array_equal(a, b) for a, b in zip(got.channels, norm, strict=True))
+    assert np.array_equal(got.signal, signal)
+
+
+def test_lit_margin_covers_the_edge_stage_window():
+    """LIT_MARGIN reaches past the edge stage's window (two family tiles, the widest
+    filter's radius and 8 px beyond the valid pixels, rounded out to whole tiles) and the
+    white image's blur (3 px)."""
+    from nurbscan.detect.edges import FAMILY_TILE
+    from nurbscan.detect.normalize import LIT_MARGIN
+
+    assert LIT_MARGIN >= 2 * FAMILY_TILE + int(np.ceil(4 * 1.5)) + 8 + FAMILY_TILE - 1 + 3
 
 
 def test_extend_lines_attaches_next_to_points_off_their_row():

@@ -12,14 +12,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from ..errors import NurbscanError
-from ._threads import parallel_map
 from .decode import band_crossings
 from .edges import detect_edge_points
-from .normalize import LUMA_601, Normalised, noise_level, normalize
+from .normalize import (  # noqa: F401  (as_float_image, as_float_planes: re-exported)
+    LUMA_601,
+    Normalised,
+    as_float_image,
+    as_float_planes,
+    channel_max,
+    colour_image,
+    linear_values,
+    noise_level,
+    normalize_photograph,
+)
 
 
 class NoGrid(Exception):
@@ -66,26 +74,23 @@ def prepare(image, white, pattern, options, sigma: float | None = None,
     :class:`NoGrid` for a black or overexposed photograph.
     """
     gamma = options.gamma
-    # (the photograph and the white image side by side: _threads)
-    lin, wl = parallel_map(lambda iw: None if iw[0] is None else
-                           as_float_planes(iw[0], iw[1], gamma=gamma),
-                           ((image, "image"), (white, "white image")))
-    h, w = lin[0].shape
+    image = colour_image(image, "image")
     if white is not None:
-        if wl[0].shape != lin[0].shape:
-            raise NurbscanError(f"white image: size {wl[0].shape[1]}x{wl[0].shape[0]} does "
-                                f"not match the grid image's {w}x{h}")
-    sub = np.maximum(np.maximum(lin[0][::4, ::4], lin[1][::4, ::4]), lin[2][::4, ::4])
+        white = colour_image(white, "white image")
+        if white.shape[:2] != image.shape[:2]:
+            raise NurbscanError(f"white image: size {white.shape[1]}x{white.shape[0]} does "
+                                f"not match the grid image's {image.shape[1]}x"
+                                f"{image.shape[0]}")
+    h, w = image.shape[:2]
     # (screening on a subsample)
+    sub = channel_max(linear_values(image[::4, ::4], "image", gamma))
     if np.percentile(sub, 99.5) < 0.08**gamma:
         raise NoGrid("image: too dark (black), no grid found", (w, h))
     if np.mean(sub > 0.98**gamma) > 0.5:
         raise NoGrid("image: overexposed (more than half the pixels saturated), no grid found",
                      (w, h))
-    wl = None if wl is None else list(wl)  # (normalize empties it: each plane freed after use)
-    nrm = normalize(lin, wl, window=options.window,
-                    weights=LUMA_601 if options.chroma_subsampled else None, overwrite=True)
-    del lin, wl
+    nrm = normalize_photograph(image, white, gamma, window=options.window,
+                               weights=LUMA_601 if options.chroma_subsampled else None)
     sig = nrm.signal
     band_px_est = band_width_px(sig, pattern, nrm.valid)
     pitch_px_est = band_px_est * pattern.pitch / pattern.band  # one pattern pitch, camera px
@@ -100,47 +105,6 @@ def prepare(image, white, pattern, options, sigma: float | None = None,
     # there the gap samples fall on the edges' blur and the strict rules drop most lines.
     fine = bool(np.isfinite(band_px_est) and band_px_est >= FINE_BAND_PX)
     return Prepared(nrm, (w, h), band_px_est, pitch_px_est, sigma, fine)
-
-
-def as_float_image(image, what: str = "image", gamma: float = 1.0) -> np.ndarray:
-    """An (H, W, 3) float32 copy of ``image``, scaled to [0, 1] and raised to ``gamma``.
-
-    uint8 / uint16 data are scaled by their full scale and linearised through a look-up table;
-    grey images are repeated in the three channels; float data must be finite.
-    """
-    a = np.asarray(image)
-    if a.ndim == 2:
-        a = np.repeat(a[:, :, None], 3, axis=2)
-    if a.ndim != 3 or a.shape[2] not in (3, 4) or a.shape[0] < 16 or a.shape[1] < 16:
-        raise NurbscanError(f"{what}: expected an (H, W, 3) image of at least 16 x 16 px, "
-                            f"got shape {a.shape}")
-    a = a[:, :, :3]
-    if a.dtype in (np.uint8, np.uint16):
-        top = 255 if a.dtype == np.uint8 else 65535
-        lut = ((np.arange(top + 1, dtype=np.float64) / top) ** gamma).astype(np.float32)
-        if a.dtype == np.uint8:  # OpenCV's table look-up: same values, several times faster
-            return cv2.LUT(np.ascontiguousarray(a), lut)
-        return lut[a]
-    if a.dtype.kind not in "fiu":
-        raise NurbscanError(f"{what}: unsupported sample type {a.dtype}")
-    a = a.astype(np.float32)
-    if not np.all(np.isfinite(a)):
-        raise NurbscanError(f"{what}: holds NaN or infinite values")
-    a = np.clip(a, 0.0, None)
-    return a**gamma if gamma != 1 else a
-
-
-def as_float_planes(image, what: str = "image", gamma: float = 1.0) -> tuple:
-    """The three colour planes of :func:`as_float_image`, each (H, W) float32 and contiguous.
-
-    8-bit images are split first and each plane looked up (OpenCV), which avoids an
-    interleaved (H, W, 3) float copy and its split: 60 instead of 135 ms for 7.1 MP.
-    """
-    a = np.asarray(image)
-    if a.dtype == np.uint8 and a.ndim == 3 and a.shape[2] in (3, 4) and min(a.shape[:2]) >= 16:
-        lut = ((np.arange(256, dtype=np.float64) / 255) ** gamma).astype(np.float32)
-        return tuple(cv2.LUT(c, lut) for c in cv2.split(np.ascontiguousarray(a[:, :, :3])))
-    return tuple(cv2.split(as_float_image(image, what, gamma)))
 
 
 def band_width_px(signal: np.ndarray, pattern, valid: np.ndarray | None = None) -> float:
