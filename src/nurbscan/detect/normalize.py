@@ -14,7 +14,7 @@ The edge signal is the sum of the normalised channels (:func:`edge_signal`), whi
 band's edge profile undisturbed where it meets a band of the other direction. The large-scale
 fields (dark level, envelope) are computed at a quarter of the resolution.
 
-The per-pixel arithmetic is one compiled pass (:func:`_normalise_rows`, numba: the float32
+The per-pixel arithmetic is one compiled pass (:func:`_normalised_pixel`, numba: the float32
 operations numpy's ufuncs made in five passes over the planes, in the same order), and
 :func:`normalize_photograph` does all of it, and the linearisation, over the window the white
 image lights only (a quarter of a 7.1 MP teapot view): the normalise stage of a 7.1 MP
@@ -260,8 +260,9 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
         wp = [env] * 3
     else:
         wp = _blurred(wp, overwrite)
-    h, w = chans[0].shape
-    out = _outputs((h, w), chans if overwrite else None)
+    shape = chans[0].shape
+    out = list(chans) if overwrite else [np.empty(shape, np.float32) for _ in range(3)]
+    out += [np.empty(shape, np.float32), np.empty(shape, np.bool_)]
     _normalise_rows_split(chans, wp, dark, np.float32(floor), wts, out)
     return Normalised(signal=out[3], valid=out[4], channels=tuple(out[:3]))
 
@@ -308,13 +309,15 @@ def normalize_photograph(image: np.ndarray, white: np.ndarray | None, gamma: flo
     wts = _weights(weights)
     h, w = image.shape[:2]
     rows, cols = lit_window(white, gamma, floor)
-    dark = dark_level(image, gamma, window)[rows, cols]
-    lin, wl = parallel_map(lambda iw: as_float_planes(iw[0][rows, cols], iw[1], gamma=gamma),
-                           ((image, "image"), (white, "white image")))
-    wl = _blurred(list(wl), True)
-    out = _outputs((h, w), None, (rows, cols))
-    _normalise_rows_split(lin, wl, dark, np.float32(floor), wts,
-                          [a[rows, cols] for a in out])
+    dark = dark_level(image, gamma, window)
+    wl = _blurred(list(as_float_planes(white[rows, cols], "white image", gamma=gamma)), True)
+    out = [np.zeros((h, w), np.float32) for _ in range(4)] + [np.zeros((h, w), np.bool_)]
+    # (the photograph's values looked up in the pass itself: no linear copy of it)
+    img, lut = np.ascontiguousarray(image), _table(image.dtype, gamma)
+    y0, x0, y1 = rows.start, cols.start, rows.stop
+    parallel_map(lambda r: _normalise_values(img, lut, wl[0], wl[1], wl[2], dark,
+                                             np.float32(floor), wts, *out, r[0], r[1], y0,
+                                             x0), ((y0, (y0 + y1) // 2), ((y0 + y1) // 2, y1)))
     return Normalised(signal=out[3], valid=out[4], channels=tuple(out[:3]))
 
 
@@ -392,53 +395,59 @@ def _blurred(planes: list, in_place: bool) -> list:
                                                   borderType=cv2.BORDER_REFLECT_101), planes)
 
 
-def _outputs(shape: tuple, channels, window=None) -> list:
-    """The three normalised channels (``channels`` themselves when given), the signal and the
-    valid mask, image-sized; zero (pages the system maps on first use) where a ``window``
-    leaves them unwritten."""
-    if window is not None:
-        planes = [np.zeros(shape, np.float32) for _ in range(4)]
-        return planes + [np.zeros(shape, np.bool_)]
-    chans = list(channels) if channels is not None else [np.empty(shape, np.float32)
-                                                         for _ in range(3)]
-    return chans + [np.empty(shape, np.float32), np.empty(shape, np.bool_)]
-
-
 def _normalise_rows_split(chans, den, dark, floor, wts, out) -> None:
-    """:func:`_normalise_rows` over the two halves of the rows side by side (_threads)."""
+    """:func:`_normalise_planes` over the two halves of the rows side by side (_threads)."""
     h = dark.shape[0]
-    parallel_map(lambda rows: _normalise_rows(chans[0], chans[1], chans[2], den[0], den[1],
-                                              den[2], dark, floor, wts, out[0], out[1],
-                                              out[2], out[3], out[4], rows[0], rows[1]),
-                 ((0, h // 2), (h // 2, h)))
+    parallel_map(lambda rows: _normalise_planes(chans[0], chans[1], chans[2], den[0], den[1],
+                                                den[2], dark, floor, wts, *out, rows[0],
+                                                rows[1]), ((0, h // 2), (h // 2, h)))
 
 
 @njit(cache=True, nogil=True)
-def _normalise_rows(i0, i1, i2, w0, w1, w2, dark, floor, wts, n0, n1, n2, signal, valid,
-                    r0, r1):
-    """Rows ``r0:r1`` of the normalisation, one pass per pixel, float32 throughout:
-    ``x_c = i_c - dark`` and ``d_c = w_c - dark`` (the channel and the blurred white, or the
-    envelope, over the dark level), valid where some ``d_c > floor``,
-    ``n_c = x_c * (1 / max(d_c, floor))`` (NaN stays NaN) and
-    ``signal = (t_0 + t_1) + t_2`` with ``t_c = x_c * (inv_c * wts_c)`` (``n_c`` for a
-    weight of 1). The outputs may be the inputs ``i_c`` themselves."""
+def _normalised_pixel(x0, x1, x2, dk, d0, d1, d2, floor, wts):
+    """One pixel of the normalisation, float32 throughout: ``x_c - dk`` (the linear channels
+    over the dark level ``dk``) times ``1 / max(d_c - dk, floor)`` (``d_c`` the blurred white,
+    or the envelope; NaN stays NaN); the signal ``(t_0 + t_1) + t_2`` with
+    ``t_c = x_c * (inv_c * wts_c)`` (the normalised channel for a weight of 1), and whether
+    some ``d_c - dk > floor``. Returns ``(n_0, n_1, n_2, signal, valid)``."""
     one = np.float32(1.0)
-    u0, u1, u2 = wts[0] == 1, wts[1] == 1, wts[2] == 1
+    x0, x1, x2 = x0 - dk, x1 - dk, x2 - dk
+    d0, d1, d2 = d0 - dk, d1 - dk, d2 - dk
+    v0 = one / (floor if d0 < floor else d0)
+    v1 = one / (floor if d1 < floor else d1)
+    v2 = one / (floor if d2 < floor else d2)
+    a0, a1, a2 = x0 * v0, x1 * v1, x2 * v2
+    t0 = a0 if wts[0] == 1 else x0 * (v0 * wts[0])
+    t1 = a1 if wts[1] == 1 else x1 * (v1 * wts[1])
+    t2 = a2 if wts[2] == 1 else x2 * (v2 * wts[2])
+    return a0, a1, a2, (t0 + t1) + t2, (d0 > floor) | (d1 > floor) | (d2 > floor)
+
+
+@njit(cache=True, nogil=True)
+def _normalise_planes(i0, i1, i2, w0, w1, w2, dark, floor, wts, n0, n1, n2, signal, valid,
+                      r0, r1):
+    """Rows ``r0:r1`` of the normalisation of the linear planes ``i_c`` (H, W) with the
+    denominators' planes ``w_c`` and the ``dark`` level (:func:`_normalised_pixel`), into
+    ``n_c``, ``signal`` and ``valid`` (which may be the planes ``i_c`` themselves)."""
     for r in range(r0, r1):
         for c in range(dark.shape[1]):
-            dk = dark[r, c]
-            x0, x1, x2 = i0[r, c] - dk, i1[r, c] - dk, i2[r, c] - dk
-            d0, d1, d2 = w0[r, c] - dk, w1[r, c] - dk, w2[r, c] - dk
-            valid[r, c] = d0 > floor or d1 > floor or d2 > floor
-            v0 = one / (floor if d0 < floor else d0)
-            v1 = one / (floor if d1 < floor else d1)
-            v2 = one / (floor if d2 < floor else d2)
-            a0, a1, a2 = x0 * v0, x1 * v1, x2 * v2
-            t0 = a0 if u0 else x0 * (v0 * wts[0])
-            t1 = a1 if u1 else x1 * (v1 * wts[1])
-            t2 = a2 if u2 else x2 * (v2 * wts[2])
-            n0[r, c], n1[r, c], n2[r, c] = a0, a1, a2
-            signal[r, c] = (t0 + t1) + t2
+            n0[r, c], n1[r, c], n2[r, c], signal[r, c], valid[r, c] = _normalised_pixel(
+                i0[r, c], i1[r, c], i2[r, c], dark[r, c], w0[r, c], w1[r, c], w2[r, c],
+                floor, wts)
+
+
+@njit(cache=True, nogil=True)
+def _normalise_values(img, lut, w0, w1, w2, dark, floor, wts, n0, n1, n2, signal, valid,
+                      r0, r1, y0, x0):
+    """Rows ``r0:r1`` of the normalisation of the photograph ``img`` (H, W, 3+) of 8 or
+    16-bit values, linearised by the table ``lut``, over the window at ``(y0, x0)`` of the
+    blurred white planes ``w_c`` (h, w): :func:`_normalised_pixel` with the image-sized
+    ``dark`` level, into the image-sized ``n_c``, ``signal`` and ``valid``."""
+    for r in range(r0, r1):
+        for c in range(x0, x0 + w0.shape[1]):
+            n0[r, c], n1[r, c], n2[r, c], signal[r, c], valid[r, c] = _normalised_pixel(
+                lut[img[r, c, 0]], lut[img[r, c, 1]], lut[img[r, c, 2]], dark[r, c],
+                w0[r - y0, c - x0], w1[r - y0, c - x0], w2[r - y0, c - x0], floor, wts)
 
 
 def edge_signal(norm: np.ndarray) -> np.ndarray:
