@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import NurbscanError
+from ._threads import parallel_map
 from .decode import band_crossings
 from .edges import detect_edge_points
 from .normalize import (  # noqa: F401  (as_float_image, as_float_planes: re-exported)
@@ -92,12 +93,14 @@ def prepare(image, white, pattern, options, sigma: float | None = None,
     nrm = normalize_photograph(image, white, gamma, window=options.window,
                                weights=LUMA_601 if options.chroma_subsampled else None)
     sig = nrm.signal
-    band_px_est = band_width_px(sig, pattern, nrm.valid)
+    # the band width and the noise level side by side (_threads)
+    noise = sigma is None and sigma_per_band is None
+    band_px_est, noise_sd = parallel_map(
+        lambda job: job(sig, nrm.valid),
+        (lambda s, v: band_width_px(s, pattern, v), noise_level if noise else lambda s, v: 0.0))
     pitch_px_est = band_px_est * pattern.pitch / pattern.band  # one pattern pitch, camera px
     if sigma is None:
-        per_band = sigma_per_band
-        if per_band is None:
-            per_band = per_band_for_noise(noise_level(sig, nrm.valid))
+        per_band = per_band_for_noise(noise_sd) if noise else sigma_per_band
         sigma = auto_sigma(band_px_est, per_band)
     # resolved bands (at least FINE_BAND_PX wide): the gaps beside a band can be sampled
     # clear of its edges' blur, and the stricter rules pay (7.1 MP teapot: RMS 0.054 ->
