@@ -308,9 +308,14 @@ def normalize_photograph(image: np.ndarray, white: np.ndarray | None, gamma: flo
                          weights=weights, overwrite=True)
     wts = _weights(weights)
     h, w = image.shape[:2]
-    rows, cols = lit_window(white, gamma, floor)
-    dark = dark_level(image, gamma, window)
-    wl = _blurred(list(as_float_planes(white[rows, cols], "white image", gamma=gamma)), True)
+    def lit_white(white):  # the lit window and the white image's blurred planes there
+        rows, cols = lit_window(white, gamma, floor)
+        planes = as_float_planes(white[rows, cols], "white image", gamma=gamma)
+        return rows, cols, _blurred(list(planes), True)
+
+    # (the dark level and the white image side by side: _threads)
+    dark, (rows, cols, wl) = parallel_map(lambda job: job[0](job[1]), (
+        (lambda im: dark_level(im, gamma, window), image), (lit_white, white)))
     out = [np.zeros((h, w), np.float32) for _ in range(4)] + [np.zeros((h, w), np.bool_)]
     # (the photograph's values looked up in the pass itself: no linear copy of it)
     img, lut = np.ascontiguousarray(image), _table(image.dtype, gamma)
