@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._jit import njit
 from ._pick import transposed
 
 
@@ -273,29 +274,9 @@ def oblique_runs(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.n
     grid = grid.ravel()
     # the flat raster pixel of the image's row r and column c: r gw + c + offset
     offset = (1 - y0) * gw + (1 - x0)
-    itype = np.int32 if grid.size < 2**31 else np.int64
-    succ = np.full(n, -1, np.int64)
-    perp_of = np.full(n, np.inf)
-    active = np.arange(n)
-    ux, uy = np.ascontiguousarray(u[:, 0]), np.ascontiguousarray(u[:, 1])
-    for c0 in range(0, len(steps), 8):
-        if not len(active):
-            break
-        st = steps[c0:c0 + 8]
-        # the rays in blocks (their temporaries stay in the cache)
-        blocks = [active[b:b + _RAY_BLOCK] for b in range(0, len(active), _RAY_BLOCK)]
-        met = [_ray_hits(grid, none, st, x, y, ux, uy, line, ab, gw, offset, itype)
-               for ab in blocks]
-        ri = np.concatenate([m[0] + _RAY_BLOCK * b for b, m in enumerate(met)])
-        best = np.concatenate([m[1] for m in met])
-        pbest = np.concatenate([m[2] for m in met])
-        del met, blocks
-        good = pbest <= tol
-        succ[active[ri[good]]] = best[good]
-        perp_of[active[ri[good]]] = pbest[good]
-        done = np.zeros(len(active), bool)
-        done[ri] = True  # a ray stops at the first edge it meets
-        active = active[~done]
+    succ, perp_of = _first_hits(grid, np.int64(none), steps, x, y,
+                                np.ascontiguousarray(u[:, 0]), np.ascontiguousarray(u[:, 1]),
+                                np.asarray(line, np.int64), gw, offset, float(tol))
     src = np.nonzero(succ >= 0)[0]
     dst = succ[src]
     # a point met by several rays keeps the one passing nearest to it
@@ -310,60 +291,45 @@ def oblique_runs(x: np.ndarray, y: np.ndarray, direction: np.ndarray, line: np.n
     return run.astype(np.int64), along
 
 
-#: Rays per block of :func:`oblique_runs` (measured best on bench view 0: docs/accuracy.md).
-_RAY_BLOCK = 16384
+@njit(cache=True, nogil=True)
+def _first_hits(grid, none, steps, x, y, ux, uy, line, gw, offset, tol):
+    """The links of :func:`oblique_runs`' rays, ray by ray (compiled: a loop that stops at the
+    first point met, where numpy sampled every ray in blocks of steps).
 
-
-def _ray_hits(grid, none, st, x, y, ux, uy, line, ray, gw, offset, itype):
-    """The links of :func:`oblique_runs`' rays from the points ``ray``, sampled at the steps
-    ``st`` (``grid`` is the flat raster, ``none`` where no point is; ``x``, ``y``, ``ux``,
-    ``uy``, ``line`` of all points): the rays (their positions in ``ray``) that meet a
-    point of another chain, the point linked to and its distance from the ray."""
+    The ray from point i along ``(ux, uy)`` is sampled at the ``steps`` (px); a sample's
+    raster pixel is ``rint(y + s uy) gw + rint(x + s ux) + offset`` of the flat raster
+    ``grid`` (``none`` where no point is). The first point met of another chain that lies
+    ahead (more than 0.5 px along the ray) and within 1.5 px of it ends the ray: of it and
+    its chain neighbours up to three positions away, the one nearest the ray (the first of
+    equals) is linked to when within ``tol`` px. Returns the linked point (N,) (-1: none) and
+    its distance from the ray (N,) (inf where none), float64 throughout.
+    """
     n = len(x)
-    xa, ya, uxa, uya = x[ray], y[ray], ux[ray], uy[ray]
-    # the samples' raster pixels, flat: rounded, then scaled and offset in float (exact:
-    # whole numbers), one cast; step by step (rows of the rays' length: numpy's inner loops
-    # run over the rays, not over the steps)
-    sy = st[:, None] * uya
-    sy += ya
-    np.rint(sy, out=sy)
-    sy *= gw
-    sx = st[:, None] * uxa
-    sx += xa
-    np.rint(sx, out=sx)
-    sy += sx
-    del sx
-    sy += offset
-    j = np.take(grid, sy.astype(itype))  # the points met, (step, ray)
-    del sy
-    # a sample meeting the point its ray's previous sample met is left out (its tests are
-    # that one's); then ray by ray in step order (:func:`~._pick.transposed`)
-    met = j != none
-    met[1:] &= j[1:] != j[:-1]
-    hit = np.flatnonzero(transposed(met))
-    jj = transposed(j).ravel()[hit].astype(np.int64)
-    nc = len(st)
-    ri = hit >> 3 if nc == 8 else hit // nc
-    other = line[jj] != line[ray][ri]  # (a point does not meet its own chain)
-    ri, jj = ri[other], jj[other]
-    rx, ry = x[jj] - xa[ri], y[jj] - ya[ri]
-    ur0, ur1 = uxa[ri], uya[ri]
-    s = rx * ur0 + ry * ur1
-    pp = np.abs(rx * ur1 - ry * ur0)
-    ok = (s > 0.5) & (pp <= 1.5)
-    ri, jj = ri[ok], jj[ok]
-    first = np.r_[True, ri[1:] != ri[:-1]] if len(ri) else np.zeros(0, bool)
-    ri, jj = ri[first], jj[first]  # the first point met by each ray
-    # of it and its chain neighbours, the nearest to the ray (the raster's pixels around
-    # a point let the ray meet an edge up to three points early or late)
-    cand = jj[:, None] + np.arange(-3, 4)
-    cand = np.clip(cand, 0, n - 1)
-    same = line[cand] == line[jj][:, None]
-    rx = x[cand] - xa[ri][:, None]
-    ry = y[cand] - ya[ri][:, None]
-    pp = np.where(same, np.abs(rx * uya[ri][:, None] - ry * uxa[ri][:, None]), np.inf)
-    k = np.argmin(pp, axis=1)
-    return ri, cand[np.arange(len(ri)), k], pp[np.arange(len(ri)), k]
+    succ = np.full(n, -1, np.int64)
+    perp = np.full(n, np.inf)
+    for i in range(n):
+        xa, ya, ua, va, own = x[i], y[i], ux[i], uy[i], line[i]
+        for k in range(len(steps)):
+            st = steps[k]
+            flat = np.rint(st * va + ya) * gw + np.rint(st * ua + xa) + offset
+            j = np.int64(grid[np.int64(flat)])
+            if j == none or line[j] == own:
+                continue
+            rx, ry = x[j] - xa, y[j] - ya
+            if not (rx * ua + ry * va > 0.5 and abs(rx * va - ry * ua) <= 1.5):
+                continue
+            best, at = np.inf, -1
+            for d in range(-3, 4):
+                c = min(max(j + d, 0), n - 1)
+                if line[c] != line[j]:
+                    continue
+                p = abs((x[c] - xa) * va - (y[c] - ya) * ua)
+                if p < best:
+                    best, at = p, c
+            if best <= tol:
+                succ[i], perp[i] = at, best
+            break
+    return succ, perp
 
 
 def window_votes(order: np.ndarray, start: np.ndarray, run: np.ndarray, across: np.ndarray,
