@@ -704,6 +704,33 @@ def test_dominance_finds_edge_pixels_next_to_a_crossing_band():
         assert len(lo.x) > len(hi.x)
 
 
+def test_decode_labels_by_family_is_the_whole_decoding(teapot, monkeypatch):
+    """decode_labels decodes the two families side by side: the labels and rows are those of
+    decoding all chains at once (the families' split refused), on the 1280 x 960 teapot view
+    where both families are traced and pooled, propagated and interpolated."""
+    from nurbscan.detect import labels as L
+    from nurbscan.detect.chains import find_edges, trace_chains
+    from nurbscan.detect.crossings import read_colours
+    from nurbscan.detect.prepare import prepare
+
+    v, pat = teapot
+    o = DetectOptions()
+    prep = prepare(v.grid, v.white, pat, o.image, o.edges.sigma, o.edges.sigma_per_band)
+    chains = trace_chains(find_edges(prep, o.edges), prep, o.chains.min_length)
+    reading = read_colours(chains, prep, pat, o.reading)
+    families = L._families(chains, reading)
+    assert families is not None and prep.fine
+    assert min(f.nlines for f in families) > 100 and len(chains.join_src) > 20
+    split = L.decode_labels(chains, reading, prep, pat, o.decoding)
+    monkeypatch.setattr(L, "_families", lambda chains, reading: None)
+    whole = L.decode_labels(chains, reading, prep, pat, o.decoding)
+    assert np.array_equal(split.label, whole.label) and np.mean(whole.label >= 0) > 0.5
+    assert len(split.rows) == len(whole.rows) == 2
+    for a, b in zip(split.rows, whole.rows, strict=True):
+        assert a[0] == b[0] and all(np.array_equal(p, q) for p, q in zip(a[1:], b[1:],
+                                                                          strict=True))
+
+
 @pytest.fixture(scope="module")
 def teapot_no_corners(teapot):
     """The 1280 x 960 teapot view detected without the attached corner points."""

@@ -76,7 +76,7 @@ def family_labels(labels: Labels, chains: Chains, reading: Reading, prep: Prepar
                                    dissent=True)
 
         label = _until_stable(fit_round, label, options.fit_rounds)
-        label = check_adjacencies(label, reading, pattern)
+        label = check_adjacencies(label, reading.props, pattern)
     if epipolar is not None and EPIPOLAR_ROUNDS:
         radius = EPIPOLAR_RADIUS * pitch_px_est
         memo: dict = {}
@@ -89,7 +89,7 @@ def family_labels(labels: Labels, chains: Chains, reading: Reading, prep: Prepar
             return epipolar_check(lab, pred, cls, line, pattern)
 
         label = _until_stable(epipolar_round, label, EPIPOLAR_ROUNDS)
-        label = check_adjacencies(label, reading, pattern)
+        label = check_adjacencies(label, reading.props, pattern)
     return replace(labels, label=label)
 
 

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from ._threads import parallel_map
 from .chains import Chains
 from .crossings import Reading
 from .decode import line_labels, small_ints
@@ -73,9 +74,10 @@ class Labels:
     rows: list | None = None
 
 
-def check_adjacencies(label: np.ndarray, reading: Reading, pattern) -> np.ndarray:
-    """:func:`check_adjacency` along the runs of both directions."""
-    for lr, lf, st, rw, ra, fa, _, _ in reading.props:
+def check_adjacencies(label: np.ndarray, props: tuple, pattern) -> np.ndarray:
+    """:func:`check_adjacency` along the runs of the directions' crossings ``props``
+    (:attr:`~nurbscan.detect.crossings.Reading.props`)."""
+    for lr, lf, st, rw, ra, fa, _, _ in props:
         label = check_adjacency(label, lr, lf, st, rw, ra, fa, pattern.pitch / pattern.band)
     return label
 
@@ -100,16 +102,101 @@ def decode_labels(chains: Chains, reading: Reading, prep: Prepared, pattern,
         raise NoGrid(f"pattern: does not match the photograph (only {consensus:.0%} of the "
                      "colour windows agree with their neighbours)", prep.size)
     seq = np.asarray(pattern.sequence)
-    lcode_all = reading.lcode
-    props = reading.props
-    jsrc, jdst, join_gap = chains.join_src, chains.join_dst, chains.join_gap
+    # the two families' lines are decoded side by side (_threads): no step below relates a
+    # line to one of the other family (the runs, band pairs, joins, checks and rows are each
+    # one family's), and a step only labels unlabelled lines or unlabels its own lines
+    families = _families(chains, reading)
+    if families is None:
+        families = [_Family(px, py, cls, line, 0, nlines, reading.props, chains.join_src,
+                            chains.join_dst, line[reading.vote_point], reading.vote_band,
+                            reading.vote_pos, 0)]
+    span = _join_span(px, py)
+    parts = parallel_map(lambda f: _propagated(label, f, reading.lcode, seq, pattern, options,
+                                               fine, chains.join_gap, span), families)
+    rows = None
+    if len(parts) > 1:
+        own = np.zeros(nlines, bool)
+        own[families[1].first_line:families[1].first_line + families[1].nlines] = True
+        label = np.where(own, parts[1][0], parts[0][0])
+        if parts[0][1] is not None:
+            rows = parts[0][1] + parts[1][1]
+    else:
+        label, rows = parts[0]
+    return Labels(label, votes, agree, rows)
+
+
+@dataclass(frozen=True)
+class _Family:
+    """The chains of one family (or of both) for :func:`_propagated`: their points (``x``,
+    ``y``, ``cls``, ``line``: the chains' own ids), the ``nlines`` chains from
+    ``first_line`` on, the runs' crossings (``props``), the collinear joins, the window
+    votes (``vote_line``, ``vote_band``, ``vote_pos``) and the points' offset in the
+    chains' arrays (``first_point``)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    cls: np.ndarray
+    line: np.ndarray
+    first_line: int
+    nlines: int
+    props: tuple
+    join_src: np.ndarray
+    join_dst: np.ndarray
+    vote_line: np.ndarray
+    vote_band: np.ndarray
+    vote_pos: np.ndarray
+    first_point: int
+
+
+def _families(chains: Chains, reading: Reading) -> list[_Family] | None:
+    """The vertical and the horizontal family's chains (:class:`_Family`), where the chains
+    of each are consecutive (as :func:`~nurbscan.detect.lines.trace_lines` numbers them) and
+    both have runs; None otherwise."""
+    cls, line, nlines = chains.cls, chains.line, chains.nlines
+    if not len(line):
+        return None
+    d = cls // 2
+    cut = int(np.searchsorted(d, 1))  # (the points are grouped by chain)
+    names = [p[7] for p in reading.props]
+    if (cut in (0, len(d)) or np.any(d[cut:] != 1) or np.any(d[:cut] != 0)
+            or names != ["vertical", "horizontal"]):
+        return None
+    first = int(line[cut])
+    vline = line[reading.vote_point]
+    jv = chains.join_src < first
+    out = []
+    for k, (pts, lines, joins, votes) in enumerate((
+            (slice(0, cut), (0, first), jv, vline < first),
+            (slice(cut, len(d)), (first, nlines), ~jv, vline >= first))):
+        out.append(_Family(chains.x[pts], chains.y[pts], cls[pts], line[pts], lines[0],
+                           lines[1] - lines[0], (reading.props[k],), chains.join_src[joins],
+                           chains.join_dst[joins], vline[votes], reading.vote_band[votes],
+                           reading.vote_pos[votes], pts.start))
+    return out
+
+
+def _join_span(x: np.ndarray, y: np.ndarray) -> float:
+    """:func:`~nurbscan.detect.lines.join_collinear`'s class spacing for the points."""
+    return float(max(x.max(), y.max()) + 10.0) * 4 if len(x) else 0.0
+
+
+def _propagated(label: np.ndarray, f: _Family, lcode_all: np.ndarray, seq: np.ndarray,
+                pattern, options, fine: bool, join_gap: float, span: float) -> tuple:
+    """:func:`decode_labels` after the windows' labels ``label`` (L,), for the chains of
+    ``f``: pooled over the pieces of an edge, propagated, checked and interpolated. Returns
+    the labels (L,; the other chains' as given) and the rows (:func:`row_order`, indices of
+    the chains' points) or None."""
+    px, py, cls, line, props = f.x, f.y, f.cls, f.line, f.props
+    min_votes, min_agreement = options.min_votes, options.min_agreement
+    jsrc, jdst = f.join_src, f.join_dst
     pool_gap = options.pool_gap if fine else 0.0
     if pool_gap > 0 and join_gap > 0 and len(line):
-        psrc, pdst = join_collinear(px, py, cls, line, max_gap=pool_gap * join_gap,
-                                    tol=POOL_TOL, pairs_only=True)
-        label = pooled_labels(label, psrc, pdst, line[reading.vote_point], reading.vote_band,
-                              reading.vote_pos, lcode_all, seq, min_votes, min_agreement,
-                              pattern.n)
+        psrc, pdst = join_collinear(px, py, cls, line - f.first_line,
+                                    max_gap=pool_gap * join_gap, tol=POOL_TOL,
+                                    pairs_only=True, span=span)
+        label = pooled_labels(label, psrc + f.first_line, pdst + f.first_line, f.vote_line,
+                              f.vote_band, f.vote_pos, lcode_all, seq, min_votes,
+                              min_agreement, pattern.n)
 
     def propagate(label):
         for lr, lf, st, rw, ra, fa, lcode, name in props:
@@ -123,7 +210,7 @@ def decode_labels(chains: Chains, reading: Reading, prep: Prepared, pattern,
     label = _until_stable(lambda lab: propagate_collinear(lab, jsrc, jdst, lcode_all, seq,
                                                           unknown=COLLINEAR_UNKNOWN),
                           label, options.collinear_rounds if fine else 0)
-    label = check_adjacencies(label, reading, pattern)
+    label = check_adjacencies(label, props, pattern)
     label = check_band_width(label, props, pattern.band / pattern.pitch, LINE_WIDTH_TOL)
     rows = None
     if fine and INTERPOLATION_ROUNDS:
@@ -135,8 +222,9 @@ def decode_labels(chains: Chains, reading: Reading, prep: Prepared, pattern,
                                            min_votes=min_votes,
                                            require_colour=REQUIRE_COLOUR, rows=rows),
             label, INTERPOLATION_ROUNDS)
-        label = check_adjacencies(label, reading, pattern)
-    return Labels(label, votes, agree, rows)
+        label = check_adjacencies(label, props, pattern)
+        rows = [(d, idx + f.first_point, run, acr) for d, idx, run, acr in rows]
+    return label, rows
 
 
 def _assign_votes(label, vote_line, vote_band, lcode, seq, min_votes: int,

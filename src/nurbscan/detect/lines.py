@@ -356,7 +356,8 @@ def _end_fit(along: np.ndarray, across: np.ndarray, idx: np.ndarray, step: int, 
 
 def join_collinear(x: np.ndarray, y: np.ndarray, cls: np.ndarray, line: np.ndarray,
                    max_gap: float, tol: float = 0.8, k: int = 4, slack: float = 0.03,
-                   pairs_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
+                   pairs_only: bool = False, span: float | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """Join chains of one edge class that continue each other across a gap.
 
     A band edge is cut into pieces where a band of the other direction crosses it (the edge
@@ -372,6 +373,10 @@ def join_collinear(x: np.ndarray, y: np.ndarray, cls: np.ndarray, line: np.ndarr
     ----------
     x, y : (M,) float, cls : (M,) int, line : (M,) int
         Points grouped by chain and ordered along each chain (:func:`trace_lines`).
+    span : float, optional
+        The spacing of the classes' planes of the end points (beyond every coordinate and
+        ``max_gap``); default four times the largest coordinate plus 10 px. The points of a
+        part of the classes joined with the span of all give the joins of all among them.
 
     Returns
     -------
@@ -409,7 +414,8 @@ def join_collinear(x: np.ndarray, y: np.ndarray, cls: np.ndarray, line: np.ndarr
         cs[m], ss[m] = c, s
     ae = along[stop - 1]
     as_ = along[start]
-    span = float(max(x.max(), y.max()) + 10.0) * 4
+    if span is None:
+        span = float(max(x.max(), y.max()) + 10.0) * 4
     # end points and start points in a (class-shifted) plane: along, across
     pe = np.c_[ae + lcls * span, ce]
     ps = np.c_[as_ + lcls * span, cs]
