@@ -704,6 +704,31 @@ def test_dominance_finds_edge_pixels_next_to_a_crossing_band():
         assert len(lo.x) > len(hi.x)
 
 
+def test_trace_chains_by_family_is_the_whole_tracing(teapot):
+    """trace_chains traces and joins the two families side by side: the chains, their
+    numbering and the joins are those of tracing and joining all points at once, on the
+    1280 x 960 teapot view."""
+    from nurbscan.detect.chains import find_edges, trace_chains
+    from nurbscan.detect.lines import join_collinear, trace_lines
+    from nurbscan.detect.prepare import prepare
+
+    v, pat = teapot
+    o = DetectOptions()
+    prep = prepare(v.grid, v.white, pat, o.image, o.edges.sigma, o.edges.sigma_per_band)
+    edges = find_edges(prep, o.edges)
+    chains = trace_chains(edges, prep, o.chains.min_length)
+    w, h = prep.size
+    order, line = trace_lines(edges.points, (h, w), min_length=o.chains.min_length)
+    x, y, cls = (a[order] for a in (edges.points.x, edges.points.y, edges.points.cls))
+    src, dst = join_collinear(x, y, cls.astype(np.int64), line, max_gap=chains.join_gap,
+                              pairs_only=True)
+    assert np.array_equal(chains.line, line) and np.array_equal(chains.x, x)
+    assert np.array_equal(chains.y, y) and np.array_equal(chains.cls, cls)
+    assert np.array_equal(chains.join_src, src) and np.array_equal(chains.join_dst, dst)
+    assert len(src) > 20 and len(np.unique(cls[line == line[-1]] // 2)) == 1
+    assert np.any(cls < 2) and np.any(cls >= 2)
+
+
 def test_decode_labels_by_family_is_the_whole_decoding(teapot, monkeypatch):
     """decode_labels decodes the two families side by side: the labels and rows are those of
     decoding all chains at once (the families' split refused), on the 1280 x 960 teapot view

@@ -16,9 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._pick import pick
+from ._threads import parallel_map
 from .decode import small_ints
 from .edges import EdgePoints, detect_edge_points
-from .lines import fit_lines, join_collinear, neighbour_fit, trace_lines
+from .lines import fit_lines, join_collinear, join_span, neighbour_fit, trace_lines
 from .prepare import NoGrid, Prepared
 
 #: Smoothing along the edges, camera px (None: ``sigma``). Smoothing more along the edges than
@@ -114,13 +115,37 @@ def trace_chains(edges: Edges, prep: Prepared, min_length: int) -> Chains:
     collinear pieces of one edge (:func:`~nurbscan.detect.lines.join_collinear`)."""
     pts = edges.points
     w, h = prep.size
-    order, line = trace_lines(pts, (h, w), min_length=min_length)
+    # the two families' points traced and joined side by side (_threads), where the vertical
+    # family's points come first (as detect_edge_points gives them): the same chains, since
+    # the links, the chains' numbering (by their first point) and the joins each stay within
+    # one class
+    cut = int(np.count_nonzero(pts.cls < 2))
+    split = 0 < cut < len(pts.cls) and bool(np.all(pts.cls[:cut] < 2))
+    if split:
+        (ov, lv), (oh, lh) = parallel_map(
+            lambda part: trace_lines(pts.take(part), (h, w), min_length=min_length),
+            (np.arange(cut), np.arange(cut, len(pts.cls))))
+        first = int(lv[-1]) + 1 if len(lv) else 0
+        order, line = np.r_[ov, oh + cut], np.r_[lv, lh + first]
+        split = len(lv) > 0 and len(lh) > 0
+    else:
+        order, line = trace_lines(pts, (h, w), min_length=min_length)
     band_px = prep.band_px
     join_gap = 1.5 * band_px + 4 * prep.sigma if np.isfinite(band_px) else 0.0
     cls = pts.cls[order].astype(np.int64)
     x, y = pts.x[order], pts.y[order]
     if join_gap > 0 and len(line):
-        jsrc, jdst = join_collinear(x, y, cls, line, max_gap=join_gap, pairs_only=True)
+        span = join_span(x, y)
+        if split:
+            at = len(lv)
+            parts = parallel_map(lambda p: join_collinear(
+                x[p[0]], y[p[0]], cls[p[0]], line[p[0]] - p[1], max_gap=join_gap,
+                pairs_only=True, span=span), ((slice(0, at), 0), (slice(at, None), first)))
+            jsrc = np.r_[parts[0][0], parts[1][0] + first]
+            jdst = np.r_[parts[0][1], parts[1][1] + first]
+        else:
+            jsrc, jdst = join_collinear(x, y, cls, line, max_gap=join_gap, pairs_only=True,
+                                        span=span)
     else:
         jsrc = jdst = np.zeros(0, np.int64)
     nlines = int(line.max()) + 1 if len(line) else 0

@@ -23,7 +23,7 @@ from ._threads import parallel_map
 from .chains import Chains
 from .crossings import Reading
 from .decode import line_labels, small_ints
-from .lines import join_collinear
+from .lines import join_collinear, join_span
 from .prepare import NoGrid, Prepared
 
 #: Least share of all window votes that agree with their line's majority; below it the
@@ -110,7 +110,7 @@ def decode_labels(chains: Chains, reading: Reading, prep: Prepared, pattern,
         families = [_Family(px, py, cls, line, 0, nlines, reading.props, chains.join_src,
                             chains.join_dst, line[reading.vote_point], reading.vote_band,
                             reading.vote_pos, 0)]
-    span = _join_span(px, py)
+    span = join_span(px, py)
     parts = parallel_map(lambda f: _propagated(label, f, reading.lcode, seq, pattern, options,
                                                fine, chains.join_gap, span), families)
     rows = None
@@ -173,11 +173,6 @@ def _families(chains: Chains, reading: Reading) -> list[_Family] | None:
                            chains.join_dst[joins], vline[votes], reading.vote_band[votes],
                            reading.vote_pos[votes], pts.start))
     return out
-
-
-def _join_span(x: np.ndarray, y: np.ndarray) -> float:
-    """:func:`~nurbscan.detect.lines.join_collinear`'s class spacing for the points."""
-    return float(max(x.max(), y.max()) + 10.0) * 4 if len(x) else 0.0
 
 
 def _propagated(label: np.ndarray, f: _Family, lcode_all: np.ndarray, seq: np.ndarray,

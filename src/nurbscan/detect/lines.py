@@ -415,7 +415,7 @@ def join_collinear(x: np.ndarray, y: np.ndarray, cls: np.ndarray, line: np.ndarr
     ae = along[stop - 1]
     as_ = along[start]
     if span is None:
-        span = float(max(x.max(), y.max()) + 10.0) * 4
+        span = join_span(x, y)
     # end points and start points in a (class-shifted) plane: along, across
     pe = np.c_[ae + lcls * span, ce]
     ps = np.c_[as_ + lcls * span, cs]
@@ -451,6 +451,12 @@ def join_collinear(x: np.ndarray, y: np.ndarray, cls: np.ndarray, line: np.ndarr
     o = np.lexsort((along, small_ints(pc)))
     _, nl2 = np.unique(pc[o], return_inverse=True)
     return o.astype(np.int64), nl2.astype(np.int64)
+
+
+def join_span(x: np.ndarray, y: np.ndarray) -> float:
+    """:func:`join_collinear`'s spacing of the classes' planes for the points ``x``, ``y``
+    (N,): four times their largest coordinate plus 10 px (0 without points)."""
+    return float(max(x.max(), y.max()) + 10.0) * 4 if len(x) else 0.0
 
 
 def neighbour_fit(along: np.ndarray, across: np.ndarray, line: np.ndarray, use: np.ndarray,
