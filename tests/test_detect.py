@@ -921,6 +921,41 @@ def test_extend_lines_attaches_next_to_points_off_their_row():
     assert len(ex) == 11 and ex[-1] == 10.32 and ey[-1] == 10.0 and np.all(el == 0)
 
 
+def test_attach_points_by_direction_is_the_whole_attachment():
+    """attach_points attaches the two directions' extra points side by side: the lines found
+    are those of attaching all at once (_attach_points), on crossing vertical and horizontal
+    lines with extra points continuing them, a pixel or two past their ends, and stray ones."""
+    from nurbscan.detect.chains import _attach_points, attach_points
+    from nurbscan.detect.edges import EdgePoints
+
+    rng = np.random.default_rng(5)
+    parts = []
+    for k in range(60):  # even k: vertical lines (class 0/1), odd: horizontal (class 2/3)
+        c, r0 = 10 + 3 * k, int(rng.integers(5, 40))
+        t = np.arange(r0, r0 + int(rng.integers(20, 120)))
+        along, across = (t, np.full(len(t), c))
+        xy = (across, along) if k % 2 == 0 else (along, across)
+        parts.append((*xy, np.full(len(t), 2 * (k % 2) + k % 4 // 2), np.full(len(t), k)))
+    x, y, cls, line = (np.concatenate(a) for a in zip(*parts, strict=True))
+    # extra points: each line's last point moved on by one and two pixels, and strays
+    last = np.r_[np.nonzero(np.diff(line))[0], len(line) - 1]
+    vert = cls[last] < 2
+    ex = np.r_[x[last] + ~vert, x[last] + 2 * ~vert, rng.integers(0, 250, 200)]
+    ey = np.r_[y[last] + vert, y[last] + 2 * vert, rng.integers(0, 250, 200)]
+    ec = np.r_[cls[last], cls[last], rng.integers(0, 4, 200)]
+    m = len(ex)
+    extra = EdgePoints(x=ex.astype(float), y=ey.astype(float), ix=ex.astype(np.int32),
+                       iy=ey.astype(np.int32), cls=ec.astype(np.int8),
+                       strength=np.ones(m, np.float32), gx=np.ones(m, np.float32),
+                       gy=np.zeros(m, np.float32))
+    got = attach_points(line, cls, x, y, extra, (260, 260))
+    want = _attach_points(line, cls, x, y, extra, (260, 260), 3)
+    assert np.array_equal(got, want)
+    n = len(last)
+    assert np.array_equal(got[:n], np.unique(line)) and np.array_equal(got[n:2 * n], got[:n])
+    assert np.any(got[2 * n:] >= 0) and np.any(got[2 * n:] < 0)
+
+
 def test_fit_line_row_keeps_points_on_their_rows(pattern, oblique_view):
     """detect_edge_points: with fit_line="row" every slope is 0 and the points lie on their
     pixels' rows (vertical-band edges) and columns; with the balanced line on the oblique

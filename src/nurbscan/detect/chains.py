@@ -247,8 +247,25 @@ def attach_points(line, cls, ix, iy, extra, shape, rounds: int = 3) -> np.ndarra
     when exactly one line does; ``rounds`` times, so that a chain grows into the corner
     pixel by pixel. ``line``, ``cls`` (direction * 2 + edge), ``ix``, ``iy`` (N,) are the
     lines' points and their edge pixels; ``shape`` is the image's (H, W). Returns the line
-    of each extra point (M,), -1 where none.
+    of each extra point (M,), -1 where none. (The two directions' points side by side:
+    _threads; a point only joins a line of its own class.)
     """
+    cls, ecls = np.asarray(cls), np.asarray(extra.cls)
+    horizontal, extra_h = cls >= 2, ecls >= 2
+    if not (np.any(extra_h) and np.any(~extra_h) and np.any(horizontal)
+            and np.any(~horizontal)):
+        return _attach_points(line, cls, ix, iy, extra, shape, rounds)
+    parts = parallel_map(
+        lambda d: _attach_points(*pick(horizontal == d, np.asarray(line), cls, np.asarray(ix),
+                                       np.asarray(iy)), extra.take(extra_h == d), shape,
+                                 rounds), (False, True))
+    att = np.empty(len(ecls), np.int64)
+    att[~extra_h], att[extra_h] = parts
+    return att
+
+
+def _attach_points(line, cls, ix, iy, extra, shape, rounds: int) -> np.ndarray:
+    """:func:`attach_points` of any classes at once."""
     h, w = shape
     npx = h * w
 
