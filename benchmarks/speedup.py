@@ -10,7 +10,8 @@ calls; the ratio is old / new. The detections' result hashes (``detect_hash.py``
 Gordon patch counts of the two are printed as well.
 
 Usage: ``PYTHONPATH=src python benchmarks/speedup.py --old /tmp/old/src [--calls 5]
-[--json]`` (the old version e.g. from ``git archive a8cc1d8 src | tar -x -C /tmp/old``).
+[--json]`` (the old version e.g. from ``git archive cc42f03 src | tar -x -C /tmp/old``: the
+code issue 30 was filed against, whose detector took its options as keywords).
 """
 
 from __future__ import annotations
@@ -43,8 +44,11 @@ def _tasks(pkg: str, grid, white):
         return det.detect_grid(grid, pattern, white)
 
     def image_to_gordon():
-        return rec.reconstruct_view(pipe.reconstruct_detection(grid, pattern, white, rig),
-                                    rig, pattern)
+        if hasattr(pipe, "reconstruct_detection"):
+            d = pipe.reconstruct_detection(grid, pattern, white, rig)
+        else:  # (the keyword options of the single-function detector, before issue 30)
+            d = det.detect_grid(grid, pattern, white, **pipe.detect_options(rig))
+        return rec.reconstruct_view(d, rig, pattern)
 
     return detect, image_to_gordon
 
