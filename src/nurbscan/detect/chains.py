@@ -7,6 +7,11 @@ detect_edge_points`), :func:`trace_chains` traces them into chains
 (:func:`~nurbscan.detect.lines.join_collinear`). The chain filters (:func:`chain_end_residual`,
 :func:`chain_tails`) and the corner points' attachment (:func:`extend_lines`) work on any
 points grouped by chain.
+
+The links, the chains' numbering (by their first point), the joins and the corner points'
+owners each stay within one edge class: the vertical and the horizontal family are traced,
+joined and extended side by side (:mod:`~nurbscan.detect._threads`), with the same chains as
+all at once.
 """
 
 from __future__ import annotations

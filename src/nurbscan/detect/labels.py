@@ -9,6 +9,12 @@ labels along the runs (:func:`propagate_labels`), between a band's two edges
 unlabels the chains their neighbours contradict (:func:`check_adjacency`,
 :func:`check_band_width`) and labels more from the labelled neighbours of their rows
 (:func:`interpolate_labels`). Returns :class:`Labels`.
+
+No step after the windows' votes relates a chain to one of the other family (the runs' band
+crossings, the band pairs, the pieces of one edge and the rows are each one family's), and a
+step only labels unlabelled chains or unlabels its own: the two families' chains are decoded
+side by side (:mod:`~nurbscan.detect._threads`; :func:`_families`), with the same labels as
+all at once (7.1 MP teapot view: 75 -> 49 ms).
 """
 
 from __future__ import annotations
