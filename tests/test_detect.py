@@ -956,6 +956,27 @@ def test_attach_points_by_direction_is_the_whole_attachment():
     assert np.any(got[2 * n:] >= 0) and np.any(got[2 * n:] < 0)
 
 
+def test_along_line_is_the_taps_samples():
+    """oblique._along_line (one compiled pass) gives the samples of line_taps and
+    sample_taps bit for bit: both search axes, slopes up to +-0.9 px per step, and points at
+    the image's border where the taps clamp."""
+    from nurbscan.detect.oblique import _along_line, line_taps, sample_taps
+
+    rng = np.random.default_rng(7)
+    img = rng.normal(size=(60, 80)).astype(np.float32)
+    n = 500
+    ix, iy = rng.integers(0, 80, n), rng.integers(0, 60, n)
+    ix[:20], iy[20:40] = 0, 59  # on the border
+    axis = rng.integers(0, 2, n)
+    slope = rng.uniform(-0.9, 0.9, n)
+    for step in ((-1, 1), (-2.0, -1.0, 1.0, 2.0)):
+        want = sample_taps(img, *line_taps(ix, iy, axis, slope, step, img.shape))
+        got = _along_line(img, ix, iy, axis, slope, step)
+        assert got.shape == (n, len(step)) and np.array_equal(got, want)
+    got = _along_line(img, ix, iy, 1, slope, (1,))  # one axis for all
+    assert np.array_equal(got, sample_taps(img, *line_taps(ix, iy, 1, slope, (1,), img.shape)))
+
+
 def test_fit_line_row_keeps_points_on_their_rows(pattern, oblique_view):
     """detect_edge_points: with fit_line="row" every slope is 0 and the points lie on their
     pixels' rows (vertical-band edges) and columns; with the balanced line on the oblique

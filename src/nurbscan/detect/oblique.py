@@ -36,6 +36,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .._jit import njit
 from ._pick import transposed
 from ._threads import parallel_map
 
@@ -296,7 +297,46 @@ def sample_taps(img: np.ndarray, idx: np.ndarray, wts: np.ndarray) -> np.ndarray
 
 def _along_line(img: np.ndarray, ix: np.ndarray, iy: np.ndarray, axis: int,
                 slope: np.ndarray, step) -> np.ndarray:
-    """``img`` (H, W) at the (K,) ``step`` px along the fit lines through the pixels
-    (:func:`line_taps`), float64 (N, K)."""
-    return sample_taps(img, *line_taps(ix, iy, axis, slope, step, img.shape))
+    """``img`` (H, W) at the (K,) ``step`` px along the fit lines through the pixels: the
+    samples of :func:`line_taps` and :func:`sample_taps`, float64 (N, K), computed point by
+    point (:func:`_line_samples`) without the taps' (N, K, 4) arrays."""
+    ix, iy = np.asarray(ix, np.int64), np.asarray(iy, np.int64)
+    out = np.empty((len(ix), len(step)))
+    along_x = np.broadcast_to(np.asarray(axis) == 0, ix.shape)
+    _line_samples(img, ix, iy, np.ascontiguousarray(along_x),
+                  np.ascontiguousarray(slope, np.float64), np.asarray(step, np.float64), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _line_samples(img, ix, iy, along_x, slope, steps, out):
+    """``out[i, k]``: ``img`` (H, W) at ``steps[k]`` px along point i's fit line, by the taps
+    and weights of :func:`line_taps` (cubic convolution across, clamped at the border) and
+    the float64 operations of :func:`sample_taps`, in their order."""
+    h, w = img.shape
+    for i in range(len(ix)):
+        ax = along_x[i]
+        for k in range(len(steps)):
+            st = steps[k]
+            off = st * slope[i]
+            f = np.floor(off)
+            t = off - f
+            w0 = ((-0.5 * t + 1.0) * t - 0.5) * t
+            w1 = (1.5 * t - 2.5) * t * t + 1.0
+            w2 = ((-1.5 * t + 2.0) * t + 0.5) * t
+            w3 = (0.5 * t - 0.5) * t * t
+            if ax:
+                run = min(max(ix[i] + np.int64(st), 0), w - 1)
+                a, top = np.int64(f) + iy[i], h - 1
+            else:
+                run = min(max(iy[i] + np.int64(st), 0), h - 1)
+                a, top = np.int64(f) + ix[i], w - 1
+            a0, a1 = min(max(a - 1, 0), top), min(max(a, 0), top)
+            a2, a3 = min(max(a + 1, 0), top), min(max(a + 2, 0), top)
+            if ax:
+                v0, v1, v2, v3 = img[a0, run], img[a1, run], img[a2, run], img[a3, run]
+            else:
+                v0, v1, v2, v3 = img[run, a0], img[run, a1], img[run, a2], img[run, a3]
+            out[i, k] = ((np.float64(v0) * w0 + np.float64(v1) * w1)
+                         + np.float64(v2) * w2) + np.float64(v3) * w3
 
