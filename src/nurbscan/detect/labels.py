@@ -491,10 +491,11 @@ def row_consistent(label, line, cls, pred, pattern, rows: list,
     :func:`_row_neighbours` for ``label``, when the caller has them. Returns bool (N,).
     """
     out = np.zeros(len(line), bool)
-    if neighbours is None:
-        neighbours = [_row_neighbours(label, line, cls, pattern, d, idx)
-                      for d, idx, _, _ in rows]
-    for (d, idx, run, _), (known, c, prv, nxt) in zip(rows, neighbours, strict=True):
+
+    def one_run(job):  # one family's rows (the families side by side: _threads)
+        (d, idx, run, _), nb = job
+        known, c, prv, nxt = nb if nb is not None else _row_neighbours(label, line, cls,
+                                                                         pattern, d, idx)
         m = len(idx)
         k = np.nonzero(~known & np.isfinite(pred[idx]))[0]
         edges = pattern.vertical_edges if d == 0 else pattern.horizontal_edges
@@ -508,7 +509,9 @@ def row_consistent(label, line, cls, pred, pattern, rows: list,
         c1, c2 = c[np.maximum(j1, 0)], c[np.minimum(j2, m - 1)]
         ok1 = (eidx - np.searchsorted(flat, c1 - 1e-6)) == (k - j1)
         ok2 = (np.searchsorted(flat, c2 - 1e-6) - eidx) == (j2 - k)
-        out[idx[k]] = (has1 | has2) & (~has1 | ok1) & (~has2 | ok2)
+        out[idx[k]] = (has1 | has2) & (~has1 | ok1) & (~has2 | ok2)  # (disjoint per family)
+
+    parallel_map(one_run, list(zip(rows, neighbours or [None] * len(rows), strict=True)))
     return out
 
 
