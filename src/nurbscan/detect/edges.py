@@ -106,7 +106,9 @@ def gradient(signal: np.ndarray, sigma: float, sigma_along: float | None = None
     sa = sigma if sigma_along is None else sigma_along
     g, dg = gaussian_kernels(sigma)
     ga, _ = gaussian_kernels(sa)
-    s = np.ascontiguousarray(signal, dtype=np.float32)
+    s = np.asarray(signal, dtype=np.float32)
+    if s.strides[-1] != s.itemsize:  # (OpenCV reads a window of rows as it is)
+        s = np.ascontiguousarray(s)
     # cv2.sepFilter2D correlates: flip the odd kernel to convolve (the two side by side:
     # _threads)
     gx, gy = parallel_map(lambda k: cv2.sepFilter2D(s, cv2.CV_32F, *k,
