@@ -23,7 +23,7 @@ from .crossings import Reading
 from .edges import _subpixel, gradient
 from .labels import Labels
 from .lines import chain_normals, local_residual, neighbour_fit
-from .oblique import line_taps, sample_taps
+from .oblique import _along_line
 from .prepare import NoGrid, Prepared
 
 #: Drop edge points closer than this (camera px) to an edge pixel of the other direction; 0
@@ -174,7 +174,8 @@ def refine_points(sel: Selection, chains: Chains, reading: Reading, prep: Prepar
             # a point is judged clean along its chain's normal, so that edges tilted past 14
             # degrees are re-measured too (narrow bands keep the x / y rule: there the extra
             # points cost accuracy, 640 x 480 calibration views)
-            normal = chain_normals(px, py, vk, line)
+            def normal():  # (computed beside the channels' filters: _threads)
+                return chain_normals(px, py, vk, line)
         px, py, done = refine_by_channels(chn, kix, kiy, kcls, colour, px, py, sigma,
                                           SIGMA_ALONG, normal=normal, across=kacross,
                                           slope=kslope)
@@ -263,8 +264,9 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
         Filter scales, px (as in :func:`~nurbscan.detect.edges.gradient`).
     clean : float
         Largest ratio of a channel's derivative along the edge to the one across it.
-    normal : (N, 2) float, optional
-        Unit normal of each edge (the first pass's gradient direction); default the row
+    normal : (N, 2) float, or a function returning them, optional
+        Unit normal of each edge (the first pass's gradient direction; a function is called
+        beside the channels' filters); default the row
         direction (1, 0) for vertical-band edges and the column direction (0, 1) otherwise.
     across : (N, 2) float, optional
         The edge derivative is ``g . across`` (:attr:`~nurbscan.detect.edges.EdgePoints.across`, the
@@ -291,7 +293,6 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     axes = np.where(vert[:, None], [1.0, 0.0], [0.0, 1.0])
     if normal is None:
         normal = axes
-    nx, ny = np.asarray(normal, np.float64).T
     # across-edge derivative samples at offsets -1, 0, +1, and the along-edge derivative
     acc = np.zeros((n, 3))
     used = np.zeros(n, np.int64)
@@ -313,29 +314,32 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     else:
         channels = _Cropped(channels, rows, cols)
     jx, jy = ix - cols.start, iy - rows.start
-    # (N, 2): the samples one step before and after each point along its fit line, from taps
-    # shared by the images (the centre sample is the pixel's own value: its taps' weights are
-    # 0, 1, 0, 0)
-    taps = line_taps(jx, jy, np.where(vert, 0, 1), sl, (-1.0, 1.0),
-                     (rows.stop - rows.start, cols.stop - cols.start))
+    # (N, 2): the samples one step before and after each point along its fit line (the
+    # centre sample is the pixel's own value: its taps' weights are 0, 1, 0, 0)
+    search = np.where(vert, 0, 1)
     ux0, uy0 = ux[:, 0], uy[:, 0]
 
-    def channel(c):  # one channel's profiles (the channels side by side: _threads)
+    def channel(c):  # one channel's profiles
         img = channels[c]  # (a lazy sequence computes each plane here)
         gx, gy = gradient(img, sigma, sigma_along)
         del img
-        side = sample_taps(gx, *taps) * ux + sample_taps(gy, *taps) * uy
+        side = (_along_line(gx, jx, jy, search, sl, (-1.0, 1.0)) * ux
+                + _along_line(gy, jx, jy, search, sl, (-1.0, 1.0)) * uy)
         cx, cy = gx[jy, jx], gy[jy, jx]
         del gx, gy
         prof = np.empty((n, 3))
         prof[:, 0], prof[:, 2] = side[:, 0], side[:, 1]
         prof[:, 1] = cx.astype(np.float64) * ux0 + cy.astype(np.float64) * uy0
+        return prof, cx, cy
+
+    # the three channels side by side (_threads), and the normals when they are to be found
+    jobs = [0, 1, 2] + ([normal] if callable(normal) else [])
+    out = parallel_map(lambda job: job() if callable(job) else channel(job), jobs)
+    nx, ny = np.asarray(out[3] if callable(normal) else normal, np.float64).T
+    for c, (prof, cx, cy) in enumerate(out[:3]):  # (summed in the channels' order)
         along = nx * cy - ny * cx
         normal_d = nx * cx + ny * cy
         ok = colour[:, c] & (np.abs(along) <= clean * np.abs(normal_d)) & (prof[:, 1] > 0)
-        return prof, ok
-
-    for prof, ok in parallel_map(channel, range(3)):  # (summed in the channels' order)
         mag.append(prof[:, 1])
         acc += np.where(ok[:, None], prof, 0.0)
         used += ok
