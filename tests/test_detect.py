@@ -867,6 +867,25 @@ def test_normalize_photograph_is_normalize_over_the_lit_window(view, dtype):
         assert not np.any(a[outside])
 
 
+def test_normalize_photograph_of_a_lit_frame_is_normalize(view):
+    """normalize_photograph of a photograph lit to its borders (the window the whole frame:
+    the normalised channels in the white image's own planes) equals normalize of the whole
+    linearised photograph bit for bit."""
+    from nurbscan.detect.normalize import (
+        as_float_planes,
+        lit_window,
+        normalize,
+        normalize_photograph,
+    )
+
+    g, w = (np.round(a * 255).astype(np.uint8) for a in view[:2])
+    assert lit_window(w, 2.2, 0.03) == (slice(0, 768), slice(0, 1024))
+    whole = normalize(as_float_planes(g, gamma=2.2), as_float_planes(w, gamma=2.2))
+    part = normalize_photograph(g, w, gamma=2.2)
+    assert np.array_equal(part.valid, whole.valid) and np.array_equal(part.signal, whole.signal)
+    assert all(np.array_equal(a, b) for a, b in zip(part.channels, whole.channels, strict=True))
+
+
 def test_normalize_matches_its_formula(view):
     """normalize (the compiled pass) against its formula in numpy float32: the channels over
     the dark level, times 1 / max(blurred white - dark, floor), the valid mask and the

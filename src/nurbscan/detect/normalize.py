@@ -316,7 +316,10 @@ def normalize_photograph(image: np.ndarray, white: np.ndarray | None, gamma: flo
     # (the dark level and the white image side by side: _threads)
     dark, (rows, cols, wl) = parallel_map(lambda job: job[0](job[1]), (
         (lambda im: dark_level(im, gamma, window), image), (lit_white, white)))
-    out = [np.zeros((h, w), np.float32) for _ in range(4)] + [np.zeros((h, w), np.bool_)]
+    if wl[0].shape == (h, w):  # (the whole frame lit: the channels in the white's planes)
+        out = [*wl, np.empty((h, w), np.float32), np.empty((h, w), np.bool_)]
+    else:
+        out = [np.zeros((h, w), np.float32) for _ in range(4)] + [np.zeros((h, w), np.bool_)]
     # (the photograph's values looked up in the pass itself: no linear copy of it)
     img, lut = np.ascontiguousarray(image), _table(image.dtype, gamma)
     y0, x0, y1 = rows.start, cols.start, rows.stop
