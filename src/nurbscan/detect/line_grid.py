@@ -52,6 +52,7 @@ from ..errors import NurbscanError
 from .colour_model import chromaticity, line_contrast
 from .line_labels import DIRECTIONS, Chains, decode_family, family_chains, neighbours
 from .neighbours import closest_pairs
+from .normalize import colour_image
 from .result import DetectionResult
 from .ridges import link_ridges, ridge_points, split_directions
 
@@ -119,19 +120,11 @@ class LineDetectOptions:
 
 def _as_float(image, what: str) -> np.ndarray:
     """(H, W, 3) float32 in [0, 1] from a grey or colour array (uint8, uint16 or float)."""
-    a = np.asarray(image)
-    if a.ndim == 2:
-        a = np.repeat(a[:, :, None], 3, axis=2)
-    if a.ndim != 3 or a.shape[2] not in (3, 4) or a.shape[0] < 16 or a.shape[1] < 16:
-        raise NurbscanError(f"{what}: expected an (H, W, 3) image of at least 16 x 16 px, "
-                            f"got shape {a.shape}")
-    a = a[:, :, :3]
+    a = colour_image(image, what)
     if a.dtype == np.uint8:
         return a.astype(np.float32) / 255.0
     if a.dtype == np.uint16:
         return a.astype(np.float32) / 65535.0
-    if a.dtype.kind not in "fiu":
-        raise NurbscanError(f"{what}: unsupported sample type {a.dtype}")
     a = a.astype(np.float32)
     if not np.all(np.isfinite(a)):
         raise NurbscanError(f"{what}: holds NaN or infinite values")
