@@ -160,12 +160,18 @@ def grid_consistency(cam: np.ndarray, proj: np.ndarray, tol: float, k: int = 8) 
     n = len(cam)
     if n < k + 2:
         return np.ones(n, bool)
-    _, nb = cKDTree(cam).query(cam, k=k + 1)
-    nb = nb[:, 1:]
-    d = cam[nb] - cam[:, None, :]  # (n, k, 2), centred on the point: prediction = offset
-    a = np.concatenate([d, np.ones((n, k, 1))], axis=2)
-    ata = np.einsum("nki,nkj->nij", a, a) + np.eye(3)[None] * 1e-6
-    atb = np.einsum("nki,nkj->nij", a, proj[nb])
-    coef = np.linalg.solve(ata, atb)  # (n, 3, 2)
-    pred = coef[:, 2, :]
-    return np.hypot(*(pred - proj).T) < tol
+    tree = cKDTree(cam)
+
+    def part(rows):  # one half of the intersections (the two side by side: _threads)
+        c = cam[rows]
+        _, nb = tree.query(c, k=k + 1)
+        nb = nb[:, 1:]
+        d = cam[nb] - c[:, None, :]  # (m, k, 2), centred on the point: prediction = offset
+        a = np.concatenate([d, np.ones((len(c), k, 1))], axis=2)
+        ata = np.einsum("nki,nkj->nij", a, a) + np.eye(3)[None] * 1e-6
+        atb = np.einsum("nki,nkj->nij", a, proj[nb])
+        coef = np.linalg.solve(ata, atb)  # (m, 3, 2)
+        pred = coef[:, 2, :]
+        return np.hypot(*(pred - proj[rows]).T) < tol
+
+    return np.concatenate(parallel_map(part, (slice(0, n // 2), slice(n // 2, n))))
