@@ -77,10 +77,17 @@ def family_normals(gx: np.ndarray, gy: np.ndarray, strong: np.ndarray, tile: int
         ax, ay = gx[iy, ix], gy[iy, ix]
     else:
         iy, ix, ax, ay = pixels
-    phi = np.mod(np.arctan2(ay, ax), np.pi)
-    b = np.minimum((phi * (bins / np.pi)).astype(np.int64), bins - 1)
-    t = (iy // tile).astype(np.int64) * tx + ix // tile
-    hist = np.bincount(t * bins + b, weights=np.hypot(ax, ay),
+
+    def keys(part):  # each pixel's (tile, bin) and weight, element by element (the two
+        # halves side by side: _threads)
+        phi = np.mod(np.arctan2(ay[part], ax[part]), np.pi)
+        b = np.minimum((phi * (bins / np.pi)).astype(np.int64), bins - 1)
+        t = (iy[part] // tile).astype(np.int64) * tx + ix[part] // tile
+        return t * bins + b, np.hypot(ax[part], ay[part])
+
+    half = len(iy) // 2
+    (k0, w0), (k1, w1) = parallel_map(keys, (slice(0, half), slice(half, None)))
+    hist = np.bincount(np.concatenate([k0, k1]), weights=np.concatenate([w0, w1]),
                        minlength=ty * tx * bins).reshape(ty, tx, bins)
     from scipy.ndimage import uniform_filter1d
 
