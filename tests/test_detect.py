@@ -979,7 +979,8 @@ def test_along_line_is_the_taps_samples():
     """oblique._along_line (one compiled pass) gives the samples of line_taps and
     sample_taps bit for bit: both search axes, slopes up to +-0.9 px per step, and points at
     the image's border where the taps clamp."""
-    from nurbscan.detect.oblique import _along_line, line_taps, sample_taps
+    from _line_taps import line_taps, sample_taps
+    from nurbscan.detect.oblique import _along_line
 
     rng = np.random.default_rng(7)
     img = rng.normal(size=(60, 80)).astype(np.float32)
@@ -1853,7 +1854,8 @@ def test_fit_slopes_lie_between_the_other_edges_and_the_own_normal():
 def test_line_taps_mix_search_axes_and_clamp_at_the_border():
     """line_taps with a per-point search axis gives the per-axis samples of _along_line,
     also where the taps run past the image's border (clamped)."""
-    from nurbscan.detect.oblique import _along_line, line_taps
+    from _line_taps import line_taps
+    from nurbscan.detect.oblique import _along_line
 
     img = np.random.default_rng(2).random((30, 40)).astype(np.float32)
     ix, iy = np.array([1, 20, 38, 5, 20, 39]), np.array([0, 15, 29, 1, 28, 10])

@@ -124,8 +124,8 @@ def trace_chains(edges: Edges, prep: Prepared, min_length: int) -> Chains:
     # family's points come first (as detect_edge_points gives them): the same chains, since
     # the links, the chains' numbering (by their first point) and the joins each stay within
     # one class
-    cut = int(np.count_nonzero(pts.cls < 2))
-    split = 0 < cut < len(pts.cls) and bool(np.all(pts.cls[:cut] < 2))
+    cut = family_cut(pts.cls)
+    split = cut is not None
     if split:
         (ov, lv), (oh, lh) = parallel_map(
             lambda part: trace_lines(pts.take(part), (h, w), min_length=min_length),
@@ -159,6 +159,14 @@ def trace_chains(edges: Edges, prep: Prepared, min_length: int) -> Chains:
                   slope=None if pts.slope is None else pts.slope[order],
                   strength=pts.strength[order], gx=pts.gx[order], gy=pts.gy[order], line=line,
                   nlines=nlines, join_src=jsrc, join_dst=jdst, join_gap=join_gap)
+
+
+def family_cut(cls: np.ndarray) -> int | None:
+    """Where the horizontal family's points begin in points of classes ``cls`` (N,)
+    (direction * 2 + edge) that hold the vertical family's first and both families; None
+    otherwise (the families' parts can then not be taken as two slices)."""
+    cut = int(np.count_nonzero(cls < 2))
+    return cut if 0 < cut < len(cls) and bool(np.all(cls[:cut] < 2)) else None
 
 
 def _along_across(x: np.ndarray, y: np.ndarray, vertical: np.ndarray) -> tuple:

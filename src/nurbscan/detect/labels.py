@@ -26,7 +26,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from ._threads import parallel_map
-from .chains import Chains
+from .chains import Chains, family_cut
 from .crossings import Reading
 from .decode import line_labels, small_ints
 from .lines import join_collinear, join_span
@@ -159,13 +159,8 @@ def _families(chains: Chains, reading: Reading) -> list[_Family] | None:
     of each are consecutive (as :func:`~nurbscan.detect.lines.trace_lines` numbers them) and
     both have runs; None otherwise."""
     cls, line, nlines = chains.cls, chains.line, chains.nlines
-    if not len(line):
-        return None
-    d = cls // 2
-    cut = int(np.searchsorted(d, 1))  # (the points are grouped by chain)
-    names = [p[7] for p in reading.props]
-    if (cut in (0, len(d)) or np.any(d[cut:] != 1) or np.any(d[:cut] != 0)
-            or names != ["vertical", "horizontal"]):
+    cut = family_cut(cls)
+    if cut is None or [p[7] for p in reading.props] != ["vertical", "horizontal"]:
         return None
     first = int(line[cut])
     vline = line[reading.vote_point]
@@ -173,7 +168,7 @@ def _families(chains: Chains, reading: Reading) -> list[_Family] | None:
     out = []
     for k, (pts, lines, joins, votes) in enumerate((
             (slice(0, cut), (0, first), jv, vline < first),
-            (slice(cut, len(d)), (first, nlines), ~jv, vline >= first))):
+            (slice(cut, len(cls)), (first, nlines), ~jv, vline >= first))):
         out.append(_Family(chains.x[pts], chains.y[pts], cls[pts], line[pts], lines[0],
                            lines[1] - lines[0], (reading.props[k],), chains.join_src[joins],
                            chains.join_dst[joins], vline[votes], reading.vote_band[votes],

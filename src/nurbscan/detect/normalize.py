@@ -248,7 +248,7 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
         wp = list(_planes(white, "white image"))
         if overwrite and isinstance(white, list):
             white.clear()  # (the caller's references go: its planes become the blurred ones)
-        _same_size(wp[0].shape, chans[0].shape)
+        check_white_size(wp[0].shape, chans[0].shape)
     # dark level: local minimum of the grid image (ambient light in the black gaps)
     dark = smooth_field(cv2.min(cv2.min(chans[0], chans[1]), chans[2]), window / 3, "min",
                         window)
@@ -263,7 +263,8 @@ def normalize(image: np.ndarray, white: np.ndarray | None = None, window: int = 
     shape = chans[0].shape
     out = list(chans) if overwrite else [np.empty(shape, np.float32) for _ in range(3)]
     out += [np.empty(shape, np.float32), np.empty(shape, np.bool_)]
-    _normalise_rows_split(chans, wp, dark, np.float32(floor), wts, out)
+    _in_row_halves(lambda r0, r1: _normalise_planes(*chans, *wp, dark, np.float32(floor), wts,
+                                                    *out, r0, r1), 0, shape[0])
     return Normalised(signal=out[3], valid=out[4], channels=tuple(out[:3]))
 
 
@@ -308,6 +309,7 @@ def normalize_photograph(image: np.ndarray, white: np.ndarray | None, gamma: flo
                          weights=weights, overwrite=True)
     wts = _weights(weights)
     h, w = image.shape[:2]
+
     def lit_white(white):  # the lit window and the white image's blurred planes there
         rows, cols = lit_window(white, gamma, floor)
         planes = as_float_planes(white[rows, cols], "white image", gamma=gamma)
@@ -322,10 +324,10 @@ def normalize_photograph(image: np.ndarray, white: np.ndarray | None, gamma: flo
         out = [np.zeros((h, w), np.float32) for _ in range(4)] + [np.zeros((h, w), np.bool_)]
     # (the photograph's values looked up in the pass itself: no linear copy of it)
     img, lut = np.ascontiguousarray(image), _table(image.dtype, gamma)
-    y0, x0, y1 = rows.start, cols.start, rows.stop
-    parallel_map(lambda r: _normalise_values(img, lut, wl[0], wl[1], wl[2], dark,
-                                             np.float32(floor), wts, *out, r[0], r[1], y0,
-                                             x0), ((y0, (y0 + y1) // 2), ((y0 + y1) // 2, y1)))
+    y0, x0 = rows.start, cols.start
+    _in_row_halves(lambda r0, r1: _normalise_values(img, lut, *wl, dark, np.float32(floor),
+                                                    wts, *out, r0, r1, y0, x0),
+                   rows.start, rows.stop)
     return Normalised(signal=out[3], valid=out[4], channels=tuple(out[:3]))
 
 
@@ -386,7 +388,9 @@ def _weights(weights) -> np.ndarray:
     return (3.0 * wts / wts.sum()).astype(np.float32)
 
 
-def _same_size(white: tuple, image: tuple) -> None:
+def check_white_size(white: tuple, image: tuple) -> None:
+    """Raise :class:`~nurbscan.errors.NurbscanError` when the white image's (H, W) ``white``
+    is not the grid image's ``image``."""
     if white != image:
         raise NurbscanError(f"white image: size {white[1]}x{white[0]} does not match the grid "
                             f"image's {image[1]}x{image[0]}")
@@ -403,12 +407,11 @@ def _blurred(planes: list, in_place: bool) -> list:
                                                   borderType=cv2.BORDER_REFLECT_101), planes)
 
 
-def _normalise_rows_split(chans, den, dark, floor, wts, out) -> None:
-    """:func:`_normalise_planes` over the two halves of the rows side by side (_threads)."""
-    h = dark.shape[0]
-    parallel_map(lambda rows: _normalise_planes(chans[0], chans[1], chans[2], den[0], den[1],
-                                                den[2], dark, floor, wts, *out, rows[0],
-                                                rows[1]), ((0, h // 2), (h // 2, h)))
+def _in_row_halves(fn, r0: int, r1: int) -> None:
+    """``fn(r0, mid)`` and ``fn(mid, r1)``, the two halves of the rows ``r0:r1``, side by side
+    (_threads)."""
+    mid = (r0 + r1) // 2
+    parallel_map(lambda rows: fn(*rows), ((r0, mid), (mid, r1)))
 
 
 @njit(cache=True, nogil=True)

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import NurbscanError
 from ._threads import parallel_map
 from .decode import band_crossings
 from .edges import detect_edge_points
@@ -24,6 +23,7 @@ from .normalize import (  # noqa: F401  (as_float_image, as_float_planes: re-exp
     as_float_image,
     as_float_planes,
     channel_max,
+    check_white_size,
     colour_image,
     linear_values,
     noise_level,
@@ -78,10 +78,7 @@ def prepare(image, white, pattern, options, sigma: float | None = None,
     image = colour_image(image, "image")
     if white is not None:
         white = colour_image(white, "white image")
-        if white.shape[:2] != image.shape[:2]:
-            raise NurbscanError(f"white image: size {white.shape[1]}x{white.shape[0]} does "
-                                f"not match the grid image's {image.shape[1]}x"
-                                f"{image.shape[0]}")
+        check_white_size(white.shape[:2], image.shape[:2])
     h, w = image.shape[:2]
     # (screening on a subsample)
     sub = channel_max(linear_values(image[::4, ::4], "image", gamma))
@@ -93,15 +90,15 @@ def prepare(image, white, pattern, options, sigma: float | None = None,
     nrm = normalize_photograph(image, white, gamma, window=options.window,
                                weights=LUMA_601 if options.chroma_subsampled else None)
     sig = nrm.signal
-    # the band width and the noise level side by side (_threads)
-    noise = sigma is None and sigma_per_band is None
-    band_px_est, noise_sd = parallel_map(
-        lambda job: job(sig, nrm.valid),
-        (lambda s, v: band_width_px(s, pattern, v), noise_level if noise else lambda s, v: 0.0))
+    # the band width and, when the filter scale follows the noise, the noise level side by
+    # side (_threads)
+    jobs = [lambda: band_width_px(sig, pattern, nrm.valid)]
+    if sigma is None and sigma_per_band is None:
+        jobs.append(lambda: per_band_for_noise(noise_level(sig, nrm.valid)))
+    band_px_est, *per_band = parallel_map(lambda job: job(), jobs)
     pitch_px_est = band_px_est * pattern.pitch / pattern.band  # one pattern pitch, camera px
     if sigma is None:
-        per_band = per_band_for_noise(noise_sd) if noise else sigma_per_band
-        sigma = auto_sigma(band_px_est, per_band)
+        sigma = auto_sigma(band_px_est, per_band[0] if per_band else sigma_per_band)
     # resolved bands (at least FINE_BAND_PX wide): the gaps beside a band can be sampled
     # clear of its edges' blur, and the stricter rules pay (7.1 MP teapot: RMS 0.054 ->
     # 0.048 px, coverage +3 %). Narrower bands (small or distant images) keep the plain rules:
