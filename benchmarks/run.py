@@ -2,7 +2,8 @@
 
 Each ``benchmarks/bench_*.py`` that defines ``bench() -> dict`` of measured figures (name ->
 number, string or nested dict) is run, each in its own Python process, so that its peak memory
-(the child's maximum resident set size) is its own. Figures are measured on every run, never
+(the child's maximum resident set size) is its own; the process sets glibc's malloc as the
+command line's process does (:mod:`nurbscan._malloc`). Figures are measured on every run, never
 typed in. The ``bench_*.py`` without ``bench()`` take their own arguments (two prepared
 turntable passes, most of an hour) and are run by hand: RESULTS.md lists them at its end.
 
@@ -48,6 +49,8 @@ ROOT = HERE.parent
 
 CHILD = """
 import json, resource, sys, importlib.util
+from nurbscan._malloc import COMMAND_MMAP_BYTES, COMMAND_TRIM_BYTES, reuse_freed_memory
+reuse_freed_memory(COMMAND_TRIM_BYTES, COMMAND_MMAP_BYTES)  # as the command line's process
 spec = importlib.util.spec_from_file_location("b", sys.argv[1])
 mod = importlib.util.module_from_spec(spec); spec.loader.exec_module(mod)
 res = mod.bench()

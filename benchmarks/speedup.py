@@ -59,6 +59,9 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--calls", type=int, default=5, help="warm calls of each version and task")
     ap.add_argument("--json", action="store_true", help="print one JSON line")
     args = ap.parse_args(argv)
+    from nurbscan._malloc import COMMAND_MMAP_BYTES, COMMAND_TRIM_BYTES, reuse_freed_memory
+
+    reuse_freed_memory(COMMAND_TRIM_BYTES, COMMAND_MMAP_BYTES)  # as the command line's process
     sys.path.insert(0, str(HERE))
     import bench_detect as bd
     import detect_hash as dh

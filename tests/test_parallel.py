@@ -100,3 +100,26 @@ def test_workers_reuse_freed_memory():
     plain = subprocess.run(probe, capture_output=True, text=True, check=True).stdout.split()
     assert plain == ["False"]
     assert process_map(_in_heap, [20 << 20, 20 << 20], 2) == [True, True]
+
+
+def test_command_reuses_freed_memory():
+    """The command line's process sets malloc's thresholds higher than the workers'
+    (nurbscan._malloc.COMMAND_MMAP_BYTES): a 100 MB array, above the workers' 32 MiB, comes
+    from the heap after ``nurbscan.cli.main``; in a worker it does not, nor in a plain
+    process."""
+    import ctypes.util
+
+    from nurbscan._parallel import process_map
+
+    if "libc.so" not in (ctypes.util.find_library("c") or ""):
+        pytest.skip("glibc's malloc only")
+    here = str(Path(__file__).parent)
+    head = f"import sys; sys.path.insert(0, {here!r}); import test_parallel as t; "
+    command = head + ("from nurbscan.cli import main\n"
+                      "try:\n    main(['--version'])\nexcept SystemExit:\n    pass\n"
+                      "print(t._in_heap(100 << 20))")
+    plain = head + "print(t._in_heap(100 << 20))"
+    outs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           check=True).stdout.split()[-1] for code in (command, plain)]
+    assert outs == ["True", "False"]
+    assert process_map(_in_heap, [100 << 20, 100 << 20], 2) == [False, False]

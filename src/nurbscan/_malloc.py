@@ -16,6 +16,16 @@ detection are new pages each time, and a page's first touch costs a fault and it
   with these settings; ``nurbscan calibrate``'s peak memory (its processes' PSS summed) was
   1464-1515 MB with the defaults and 1465-1468 MB with them (two runs each, alternating), and
   in a second such pair of runs 1498 MB against 1415 and 1463 MB.
+* The command line's own process (:func:`nurbscan.cli.main`) sets them higher,
+  :data:`COMMAND_MMAP_BYTES` and :data:`COMMAND_TRIM_BYTES`: there detection runs on two
+  threads, and its largest arrays (a 7.1 MP photograph's three float32 planes, 85 MB) lie
+  above glibc's 32 MiB, so with the workers' settings they are still new pages each time.
+  The benchmarks that time the command's steps in their own process set the same. Measured on the 2-core VM, bench view 0 (7.1 MP), 7 warm
+  detections per fresh process, five processes each, alternating (05:58 UTC, 2026-12-06):
+  with glibc's defaults 791-3008 page faults and 37-93 ms of system time per detection, a
+  median wall time of 0.607-0.715 s (median 0.675 s); with the workers' settings 273-5644
+  faults, 46-71 ms, 0.644-0.838 s (0.701 s); with these 2-3 faults, 16-29 ms, 0.556-0.710 s
+  (0.629 s). The processes' peak resident memory: 515-551, 517-552 and 526-553 MB.
 * :func:`one_arena` makes new threads share the main heap (``M_ARENA_MAX`` 1), so that a
   worker thread's freed image-sized arrays are not kept apart where the calling thread
   cannot reuse them (:mod:`nurbscan.detect._threads`).
@@ -33,6 +43,9 @@ M_TRIM_THRESHOLD, M_MMAP_THRESHOLD, M_ARENA_MAX = -1, -3, -8
 #: The values :func:`reuse_freed_memory` sets: glibc's own adaptive maxima
 #: (``DEFAULT_MMAP_THRESHOLD_MAX`` on 64-bit, and twice it for the trim threshold).
 TRIM_BYTES, MMAP_BYTES = 64 << 20, 32 << 20
+#: The values the command line's own process sets (module notes): every array up to 512 MiB
+#: from the heap, and up to 1 GiB of its free top kept for reuse.
+COMMAND_TRIM_BYTES, COMMAND_MMAP_BYTES = 1 << 30, 512 << 20
 
 
 def mallopt(param: int, value: int) -> bool:
@@ -45,10 +58,10 @@ def mallopt(param: int, value: int) -> bool:
     return bool(fn(ctypes.c_int(param), ctypes.c_int(value)))
 
 
-def reuse_freed_memory() -> bool:
-    """Set glibc's trim and mmap thresholds to :data:`TRIM_BYTES` and :data:`MMAP_BYTES`
-    (module notes); False where there is no glibc."""
-    return mallopt(M_TRIM_THRESHOLD, TRIM_BYTES) and mallopt(M_MMAP_THRESHOLD, MMAP_BYTES)
+def reuse_freed_memory(trim_bytes: int = TRIM_BYTES, mmap_bytes: int = MMAP_BYTES) -> bool:
+    """Set glibc's trim and mmap thresholds (bytes; by default :data:`TRIM_BYTES` and
+    :data:`MMAP_BYTES`, the workers' values: module notes); False where there is no glibc."""
+    return mallopt(M_TRIM_THRESHOLD, trim_bytes) and mallopt(M_MMAP_THRESHOLD, mmap_bytes)
 
 
 def one_arena() -> bool:

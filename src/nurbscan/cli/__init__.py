@@ -4,6 +4,10 @@ Each sub-command lives in its own module of this package with two functions:
 ``register(subparsers)`` adds its parser, and the handler it sets as ``func`` takes the parsed
 arguments and returns an exit status. Input errors (:class:`~nurbscan.errors.NurbscanError`)
 are printed as one line on stderr, with exit status 2.
+
+The command's process sets glibc's malloc to keep the memory it frees for reuse
+(:mod:`nurbscan._malloc`, :data:`~nurbscan._malloc.COMMAND_MMAP_BYTES`), as its worker
+processes do.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ import importlib
 import sys
 
 from .. import __version__
+from .._malloc import COMMAND_MMAP_BYTES, COMMAND_TRIM_BYTES, reuse_freed_memory
 from ..errors import NurbscanError
 
 #: Sub-command modules in pipeline order.
@@ -62,6 +67,7 @@ def error_text(exc: NurbscanError | OSError) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; return the exit status (0 success, 2 bad input)."""
+    reuse_freed_memory(COMMAND_TRIM_BYTES, COMMAND_MMAP_BYTES)
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
