@@ -20,8 +20,9 @@ detection are new pages each time, and a page's first touch costs a fault and it
   :data:`COMMAND_MMAP_BYTES` and :data:`COMMAND_TRIM_BYTES`: there detection runs on two
   threads, and its largest arrays (a 7.1 MP photograph's three float32 planes, 85 MB) lie
   above glibc's 32 MiB, so with the workers' settings they are still new pages each time.
-  The benchmarks that time the command's steps in their own process set the same. Measured on the 2-core VM, bench view 0 (7.1 MP), 7 warm
-  detections per fresh process, five processes each, alternating (05:58 UTC, 2026-12-06):
+  The benchmarks that time the command's steps in their own process set the same.
+  Measured on the 2-core VM, bench view 0 (7.1 MP), 7 warm detections per fresh process,
+  five processes each, alternating (05:58 UTC, 2026-12-06):
   with glibc's defaults 791-3008 page faults and 37-93 ms of system time per detection, a
   median wall time of 0.607-0.715 s (median 0.675 s); with the workers' settings 273-5644
   faults, 46-71 ms, 0.644-0.838 s (0.701 s); with these 2-3 faults, 16-29 ms, 0.556-0.710 s
