@@ -68,8 +68,9 @@ def nearest_within(points: np.ndarray, queries: np.ndarray, k: int,
     queries = np.ascontiguousarray(queries, np.float64).reshape(-1, 2)
     m, n = len(points), len(queries)
     dist, idx = np.full((n, k), np.inf), np.full((n, k), m, np.int64)
-    good = np.isfinite(points).all(1)
-    ask = np.isfinite(queries).all(1)
+    (sx, sy), (qx, qy) = _columns(points), _columns(queries)
+    good = np.isfinite(sx) & np.isfinite(sy)
+    ask = np.isfinite(qx) & np.isfinite(qy)
     if not good.any() or not ask.any():
         return dist, idx
     if not good.all() or not ask.all():  # points and queries with a NaN or inf: none found
@@ -81,13 +82,25 @@ def nearest_within(points: np.ndarray, queries: np.ndarray, k: int,
     cell = radius / CELLS_PER_RADIUS
     ok = math.isfinite(radius) and radius > 0
     if ok:
-        span = points.max(0) - points.min(0)
-        ok = (span[0] / cell + 1) * (span[1] / cell + 1) <= MAX_CELLS_PER_POINT * m + 4096
+        ok = (_span(sx) / cell + 1) * (_span(sy) / cell + 1) <= MAX_CELLS_PER_POINT * m + 4096
     if not ok:
         dist, idx = cKDTree(points).query(queries, k=k, distance_upper_bound=radius)
         return dist.reshape(n, k), idx.reshape(n, k)
-    return _grid_query(points[:, 0].copy(), points[:, 1].copy(), queries[:, 0].copy(),
-                       queries[:, 1].copy(), int(k), float(radius), float(cell))
+    return _grid_query(sx, sy, qx, qy, int(k), float(radius), float(cell))
+
+
+def _columns(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The x and y columns of ``points`` (M, 2), each contiguous (M,).
+
+    The tests and spans below run over them: numpy reduces an (M, 2) array along its short
+    axis row by row (1.5 ms for ``isfinite(p).all(1)`` at M = 10^5 against 0.07 ms for the
+    columns), the same values."""
+    return points[:, 0].copy(), points[:, 1].copy()
+
+
+def _span(c: np.ndarray) -> float:
+    """``c.max() - c.min()``: the extent of one coordinate, px."""
+    return float(c.max() - c.min())
 
 
 @njit(cache=True, nogil=True)
@@ -217,12 +230,11 @@ def closest_pairs(a: np.ndarray, a_group: np.ndarray, b: np.ndarray, b_group: np
     ga, ia = np.unique(np.asarray(a_group), return_inverse=True)
     gb, ib = np.unique(np.asarray(b_group), return_inverse=True)
     cell = float(radius)
-    span = b.max(0) - b.min(0)
+    (ax, ay), (bx, by) = _columns(a), _columns(b)
     if len(ga) * len(gb) > MAX_GROUP_PAIRS or (
-            (span[0] / cell + 1) * (span[1] / cell + 1) > MAX_CELLS_PER_POINT * len(b) + 4096):
+            (_span(bx) / cell + 1) * (_span(by) / cell + 1) > MAX_CELLS_PER_POINT * len(b) + 4096):
         return _closest_pairs_tree(a, ia, b, ib, len(gb), radius)
-    i, j, d = _closest_pairs_grid(a[:, 0].copy(), a[:, 1].copy(), ia.astype(np.int64),
-                                  b[:, 0].copy(), b[:, 1].copy(), ib.astype(np.int64),
+    i, j, d = _closest_pairs_grid(ax, ay, ia.astype(np.int64), bx, by, ib.astype(np.int64),
                                   len(ga), len(gb), float(radius), cell)
     return i, j, d
 

@@ -343,9 +343,12 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
         mag.append(prof[:, 1])
         acc += np.where(ok[:, None], prof, 0.0)
         used += ok
-    big = np.max(np.stack(mag, 1), axis=1)
+    # (the channels' largest and the samples' least element by element: numpy reduces an
+    # (N, 3) array along its short axis row by row, 3.7 instead of 0.1 ms each here)
+    big = np.maximum(np.maximum(mag[0], mag[1]), mag[2])
+    least = np.minimum(np.minimum(acc[:, 0], acc[:, 1]), acc[:, 2])
     peak = (used > 0) & (acc[:, 1] > 0.3 * big) & (acc[:, 1] >= acc[:, 0]) \
-        & (acc[:, 1] >= acc[:, 2]) & (acc.min(1) > 0)
+        & (acc[:, 1] >= acc[:, 2]) & (least > 0)
     la = np.log(np.maximum(acc, 1e-9))
     d = _subpixel(la[:, 0], la[:, 1], la[:, 2])  # |d| <= 0.5: the centre sample is the peak
     x = np.where(peak, np.where(vert, ix + d, ix + d * sl), x)
