@@ -23,6 +23,8 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
+from ._threads import parallel_map
+
 #: The detector tells the families apart by their normals, the one nearer the image's y axis
 #: taken as the horizontal bands' (:func:`~nurbscan.detect.oblique.family_normals`, per tile).
 #: Where the two normals are about as far from the y axis (a grid turned by about 45
@@ -114,16 +116,24 @@ def grid_tilt(image: np.ndarray) -> Tilt:
     a = a.astype(np.float32, copy=False)
     if scale < 1.0:
         a = cv2.resize(a, small, interpolation=cv2.INTER_AREA)
-    gx = cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=3)
-    gy = cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3)
-    m2 = (gx.astype(np.float64) ** 2 + gy.astype(np.float64) ** 2).ravel()
-    ok = np.isfinite(m2) & (m2 > 0)
-    total = m2[ok].sum()
-    if not ok.any() or total <= 0:
+    gx = cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=3).ravel()
+    gy = cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3).ravel()
+
+    def directions(part):  # the pixels' 1-degree bins and weights, element by element (the
+        # two halves side by side: _threads)
+        x, y = gx[part], gy[part]
+        m2 = x.astype(np.float64) ** 2 + y.astype(np.float64) ** 2
+        ok = np.isfinite(m2) & (m2 > 0)
+        phi = np.degrees(np.arctan2(y[ok], x[ok])) % 180.0
+        return np.minimum(phi.astype(np.int64), 179), m2[ok]
+
+    half = len(gx) // 2
+    (b0, w0), (b1, w1) = parallel_map(directions, (slice(0, half), slice(half, None)))
+    weight = np.concatenate([w0, w1])
+    total = weight.sum()
+    if not len(weight) or total <= 0:
         return Tilt(0.0, 45.0, 0.0)
-    phi = np.degrees(np.arctan2(gy.ravel()[ok], gx.ravel()[ok])) % 180.0
-    hist = np.bincount(np.minimum(phi.astype(np.int64), 179), weights=m2[ok],
-                       minlength=180) / total
+    hist = np.bincount(np.concatenate([b0, b1]), weights=weight, minlength=180) / total
     k = np.exp(-0.5 * (np.arange(-6, 7) / 2.0) ** 2)
     smooth = np.convolve(np.r_[hist[-6:], hist, hist[:6]], k / k.sum(), mode="valid")
     centre = np.arange(180) + 0.5
