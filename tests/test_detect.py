@@ -729,6 +729,55 @@ def test_trace_chains_by_family_is_the_whole_tracing(teapot):
     assert np.any(cls < 2) and np.any(cls >= 2)
 
 
+def test_chain_functions_by_family_are_the_whole(teapot):
+    """by_family runs a chain function on the two families' chains side by side: the chain
+    filters' results (end residuals, tails, local residuals and neighbour fits, at all points
+    or some) are those of one call on all chains, bit for bit, on the 1280 x 960 teapot
+    view's chains; with the families not in two slices it is one call."""
+    from nurbscan.detect.chains import (
+        _along_across,
+        by_family,
+        chain_end_residual,
+        chain_tails,
+        find_edges,
+        trace_chains,
+    )
+    from nurbscan.detect.lines import local_residual, neighbour_fit
+    from nurbscan.detect.prepare import prepare
+
+    v, pat = teapot
+    o = DetectOptions()
+    prep = prepare(v.grid, v.white, pat, o.image, o.edges.sigma, o.edges.sigma_per_band)
+    ch = trace_chains(find_edges(prep, o.edges), prep, o.chains.min_length)
+    x, y, line, d = ch.x, ch.y, ch.line, ch.cls // 2
+    vert = d == 0
+    assert vert[0] and not vert[-1] and np.all(np.diff(line) >= 0)
+    at = np.nonzero(np.random.default_rng(0).random(len(x)) < 0.3)[0]
+    use = np.random.default_rng(1).random(len(x)) < 0.8
+
+    def fit(along, across, u, ln, at):
+        return neighbour_fit(along, across, ln, u, both_sides=False, at=at)
+
+    aa = _along_across(x, y, vert)
+    cases = [(chain_end_residual, (x, y, d), {}, chain_end_residual(x, y, d, line)),
+             (chain_tails, (x, y, d), {"tol": 0.3}, chain_tails(x, y, d, line, 0.3)),
+             (local_residual, aa, {"at": at}, local_residual(*aa, line, at=at)),
+             (fit, (*aa, use), {"at": at}, neighbour_fit(*aa, line, use, both_sides=False,
+                                                          at=at))]
+    for fn, points, kw, whole in cases:
+        split = by_family(fn, vert, points, line, **kw)
+        for a, b in zip(*((split, whole) if isinstance(whole, tuple) else ((split,), (whole,))),
+                        strict=True):
+            assert a.dtype == b.dtype and np.array_equal(a, b)
+    assert np.count_nonzero(cases[1][3]) > 10 and np.count_nonzero(cases[0][3]) > 100
+    # the horizontal family first: not two slices, one call
+    calls = []
+    flip = np.r_[np.nonzero(~vert)[0], np.nonzero(vert)[0]]
+    by_family(lambda *a: calls.append(len(a[0])) or np.zeros(len(a[0])), vert[flip],
+              (x[flip], y[flip], d[flip]), line[flip])
+    assert calls == [len(x)]
+
+
 def test_decode_labels_by_family_is_the_whole_decoding(teapot, monkeypatch):
     """decode_labels decodes the two families side by side: the labels and rows are those of
     decoding all chains at once (the families' split refused), on the 1280 x 960 teapot view

@@ -169,6 +169,49 @@ def family_cut(cls: np.ndarray) -> int | None:
     return cut if 0 < cut < len(cls) and bool(np.all(cls[:cut] < 2)) else None
 
 
+def by_family(fn, vertical: np.ndarray, points: tuple, line: np.ndarray,
+              at: np.ndarray | None = None, **options):
+    """``fn(*points, line, [at=at,] **options)`` of a chain function, the two families' chains
+    side by side (:mod:`~nurbscan.detect._threads`).
+
+    ``points`` are (M,) arrays of chain points grouped by chain (``line`` non-decreasing),
+    ``vertical`` (M,) bool their family. A chain function's result for a point is computed
+    from its own chain's points alone, so where the vertical family's points come first
+    (:func:`family_cut`) ``fn`` is called on each family's slice (the chains renumbered from
+    0, ``at`` (Q,) int split by family) and the parts put together are the whole's; otherwise
+    ``fn`` runs once on all. Returns what ``fn`` returns: an array (M,) or (Q,), or a tuple
+    of them.
+    """
+    line = np.asarray(line)
+    cut = family_cut(np.where(vertical, 0, 2))
+    if cut is None:
+        return fn(*points, line, **options) if at is None else fn(*points, line, at=at,
+                                                                  **options)
+    if at is not None:
+        at = np.asarray(at, np.int64)
+        mine = at < cut
+
+    def part(family):
+        rows = slice(0, cut) if family == 0 else slice(cut, None)
+        start = 0 if family == 0 else cut
+        args = [a[rows] for a in points] + [line[rows] - line[rows][0]]
+        if at is None:
+            return fn(*args, **options)
+        return fn(*args, at=at[mine if family == 0 else ~mine] - start, **options)
+
+    parts = parallel_map(part, (0, 1))
+    single = not isinstance(parts[0], tuple)
+    out = []
+    for a, b in zip(*((p,) if single else p for p in parts), strict=True):
+        if at is None:
+            out.append(np.concatenate([a, b]))
+        else:
+            o = np.empty(len(at), np.result_type(a, b))
+            o[mine], o[~mine] = a, b
+            out.append(o)
+    return out[0] if single else tuple(out)
+
+
 def _along_across(x: np.ndarray, y: np.ndarray, vertical: np.ndarray) -> tuple:
     """Point coordinates along and across their edges: (y, x) for vertical-band edges,
     (x, y) for horizontal ones (the chain functions of :mod:`~nurbscan.detect.lines`)."""

@@ -17,7 +17,7 @@ from dataclasses import replace
 import numpy as np
 
 from ._threads import parallel_map
-from .chains import _along_across, chain_end_residual
+from .chains import _along_across, by_family, chain_end_residual
 from .decode import small_ints
 from .families import local_plane
 from .intersections import Intersections
@@ -114,7 +114,9 @@ def check_lines(lines: Lines, coord: np.ndarray, inter: Intersections, prep: Pre
             kk = np.nonzero(keep_pt)[0]
             if len(kk) == len(keep_pt):
                 break
-            off = chain_end_residual(px[kk], py[kk], ldir[line[kk]], line[kk]) > new_end_residual
+            kdir = ldir[line[kk]]
+            off = by_family(chain_end_residual, kdir == 0, (px[kk], py[kk], kdir),
+                            line[kk]) > new_end_residual
             if not np.any(off):
                 break
             keep_pt[kk[off]] = False

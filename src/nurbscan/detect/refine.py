@@ -18,7 +18,14 @@ import numpy as np
 
 from ._pick import pick
 from ._threads import parallel_map
-from .chains import SIGMA_ALONG, Chains, _along_across, chain_end_residual, chain_tails
+from .chains import (
+    SIGMA_ALONG,
+    Chains,
+    _along_across,
+    by_family,
+    chain_end_residual,
+    chain_tails,
+)
 from .crossings import Reading
 from .edges import _subpixel, gradient
 from .labels import Labels
@@ -183,9 +190,12 @@ def refine_points(sel: Selection, chains: Chains, reading: Reading, prep: Prepar
         del chn
         # points with no clean channel (their crossing band shares the band's channels) are
         # placed on the straight line through their re-measured chain neighbours
+        # (these fits and the chain filters below: the two families side by side, by_family)
         at = np.nonzero(~done)[0]  # (the fits that matter only)
-        c0_at, okf = neighbour_fit(*_along_across(px, py, vk), line, done,
-                                   both_sides=False, at=at)
+        c0_at, okf = by_family(
+            lambda along, across, use, ln, at: neighbour_fit(along, across, ln, use,
+                                                             both_sides=False, at=at),
+            vk, (*_along_across(px, py, vk), done), line, at=at)
         fix = np.zeros(len(px), bool)
         fix[at] = okf
         c0 = np.zeros(len(px))
@@ -203,7 +213,7 @@ def refine_points(sel: Selection, chains: Chains, reading: Reading, prep: Prepar
             # a point off the straight line through its re-measured neighbours (a kink where
             # the edge meets an occluding contour, a disturbed corner) is dropped
             at = np.nonzero(kp)[0]  # (the residuals that matter only)
-            kp[at] = local_residual(*_along_across(px, py, vk), line, at=at) \
+            kp[at] = by_family(local_residual, vk, _along_across(px, py, vk), line, at=at) \
                 <= options.refit_residual
         if partner_drops != "none":
             # a point whose crossing partner was dropped is as disturbed (same row, same band);
@@ -218,10 +228,11 @@ def refine_points(sel: Selection, chains: Chains, reading: Reading, prep: Prepar
     tail_residual = TAIL_RESIDUAL_EPIPOLAR if epipolar else TAIL_RESIDUAL
     if (end_residual > 0 or tail_residual > 0) and len(px):
         ke = np.ones(len(px), bool)
+        pdir = ldir[line]
         if end_residual > 0:
-            ke &= chain_end_residual(px, py, ldir[line], line) <= end_residual
+            ke &= by_family(chain_end_residual, pdir == 0, (px, py, pdir), line) <= end_residual
         if tail_residual > 0:
-            ke &= ~chain_tails(px, py, ldir[line], line, tail_residual)
+            ke &= ~by_family(chain_tails, pdir == 0, (px, py, pdir), line, tol=tail_residual)
         px, py, line, strength = px[ke], py[ke], line[ke], strength[ke]
     return Lines(x=px, y=py, strength=strength, line=line, band=lab, direction=ldir,
                  edge=lines.edge, votes=lines.votes, agreement=lines.agreement)
