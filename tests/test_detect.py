@@ -2326,3 +2326,31 @@ def test_transposed_is_numpys_transpose_for_every_element_size():
         got, want = transposed(a), np.ascontiguousarray(a.T)
         assert got.dtype == want.dtype and got.shape == want.shape, a.dtype
         assert got.flags.c_contiguous and got.tobytes() == want.tobytes(), a.dtype
+
+
+def test_refine_by_channels_in_row_bands_is_the_whole_window(teapot, monkeypatch):
+    """refine_by_channels filters each channel in two bands of rows, each reaching the
+    filters' and taps' reach past the cut (refine.SPLIT_ROWS): the re-measured points are
+    those of filtering the whole window, bit for bit, on the 1280 x 960 teapot view, with
+    points on both sides of the cut."""
+    from nurbscan.detect import refine as R
+    from nurbscan.detect.chains import find_edges, trace_chains
+    from nurbscan.detect.prepare import prepare
+
+    v, pat = teapot
+    o = DetectOptions()
+    prep = prepare(v.grid, v.white, pat, o.image, o.edges.sigma, o.edges.sigma_per_band)
+    ch = trace_chains(find_edges(prep, o.edges), prep, o.chains.min_length)
+    colour = np.random.default_rng(2).random((len(ch.x), 3)) < 0.6
+    normal = np.c_[np.where(ch.cls < 2, 1.0, 0.0), np.where(ch.cls < 2, 0.0, 1.0)]
+    args = (prep.normalised.lazy_planes(), ch.ix, ch.iy, ch.cls, colour, ch.x, ch.y,
+            prep.sigma)
+    kw = {"normal": normal, "across": ch.across, "slope": ch.slope}
+    assert R.SPLIT_ROWS
+    split = R.refine_by_channels(*args, **kw)
+    monkeypatch.setattr(R, "SPLIT_ROWS", False)
+    whole = R.refine_by_channels(*args, **kw)
+    for a, b in zip(split, whole, strict=True):
+        assert np.array_equal(a, b)
+    mid = (ch.iy.min() + ch.iy.max()) / 2
+    assert np.sum(whole[2] & (ch.iy < mid)) > 1000 and np.sum(whole[2] & (ch.iy > mid)) > 1000
