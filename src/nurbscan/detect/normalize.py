@@ -322,13 +322,18 @@ def normalize_photograph(image: np.ndarray, white: np.ndarray | None, gamma: flo
     if wl[0].shape == (h, w):  # (the whole frame lit: the channels in the white's planes)
         out = [*wl, np.empty((h, w), np.float32), np.empty((h, w), np.bool_)]
     else:
-        out = [np.zeros((h, w), np.float32) for _ in range(4)] + [np.zeros((h, w), np.bool_)]
+        out = [np.empty((h, w), np.float32) for _ in range(4)] + [np.empty((h, w), np.bool_)]
     # (the photograph's values looked up in the pass itself: no linear copy of it)
     img, lut = np.ascontiguousarray(image), _table(image.dtype, gamma)
-    y0, x0 = rows.start, cols.start
-    _in_row_halves(lambda r0, r1: _normalise_values(img, lut, *wl, dark, np.float32(floor),
-                                                    wts, *out, r0, r1, y0, x0),
-                   rows.start, rows.stop)
+    y0, y1, x0, x1 = rows.start, rows.stop, cols.start, cols.stop
+
+    def half(r0, r1):  # the window's rows r0:r1, and 0 beside them and above (below) them
+        top, bottom = (0 if r0 == y0 else r0), (h if r1 == y1 else r1)
+        for a in out:
+            a[top:r0], a[r1:bottom], a[r0:r1, :x0], a[r0:r1, x1:] = 0, 0, 0, 0
+        _normalise_values(img, lut, *wl, dark, np.float32(floor), wts, *out, r0, r1, y0, x0)
+
+    _in_row_halves(half, y0, y1)
     return Normalised(signal=out[3], valid=out[4], channels=tuple(out[:3]))
 
 
