@@ -2308,26 +2308,6 @@ def test_row_sums_and_mask_picks_are_numpys_bit_for_bit():
     assert got[0].tobytes() == p[:, 0][m].tobytes() and got[1].tobytes() == v2[m].tobytes()
 
 
-def test_transposed_is_numpys_transpose_for_every_element_size():
-    """``_pick.transposed`` (cv2.transpose of the elements' bytes) gives numpy's contiguous
-    transpose, bytes, dtype and shape, for the element sizes it carries and those it leaves
-    to numpy, NaN payloads and -0.0 included, on empty and non-contiguous arrays too."""
-    from nurbscan.detect._pick import transposed
-
-    rng = np.random.default_rng(5)
-    f = rng.normal(size=(7, 300))
-    f[0, :5] = [np.nan, -0.0, np.inf, -np.nan, 1e-310]
-    cases = [rng.random((9, 301)) < 0.5, rng.integers(0, 60000, (8, 257)).astype(np.uint16),
-             rng.integers(-2**31, 2**31 - 1, (5, 33)).astype(np.int32),
-             rng.integers(-2**62, 2**62, (8, 1000)), f, f.astype(np.float32),
-             f.astype(np.complex128), np.zeros((0, 4)), np.zeros((3, 0), np.int64), f[:, ::2],
-             np.zeros((1, 5), np.int8)]
-    for a in cases:
-        got, want = transposed(a), np.ascontiguousarray(a.T)
-        assert got.dtype == want.dtype and got.shape == want.shape, a.dtype
-        assert got.flags.c_contiguous and got.tobytes() == want.tobytes(), a.dtype
-
-
 def test_refine_by_channels_in_row_bands_is_the_whole_window(teapot, monkeypatch):
     """refine_by_channels filters each channel in two bands of rows, each reaching the
     filters' and taps' reach past the cut (refine.SPLIT_ROWS): the re-measured points are
@@ -2354,3 +2334,18 @@ def test_refine_by_channels_in_row_bands_is_the_whole_window(teapot, monkeypatch
         assert np.array_equal(a, b)
     mid = (ch.iy.min() + ch.iy.max()) / 2
     assert np.sum(whole[2] & (ch.iy < mid)) > 1000 and np.sum(whole[2] & (ch.iy > mid)) > 1000
+
+
+def test_nearest_two_is_argmin_and_the_two_least():
+    """decode._nearest_two, element by element over the rows: each column's first least row
+    (argmin's), its least value and its second least (the sorted column's first two), on
+    random distances with ties."""
+    from nurbscan.detect.decode import _nearest_two
+
+    rng = np.random.default_rng(3)
+    d = rng.integers(0, 6, (5, 4000)).astype(np.float64) / 3.0  # many ties
+    idx, least, second = _nearest_two(d)
+    s = np.sort(d, axis=0)
+    assert np.array_equal(idx, d.argmin(0))
+    assert np.array_equal(least, s[0]) and np.array_equal(second, s[1])
+    assert np.any(least == second) and np.any(idx > 0)

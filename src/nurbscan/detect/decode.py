@@ -27,7 +27,6 @@ from functools import reduce
 import numpy as np
 
 from .._jit import njit
-from ._pick import transposed
 
 
 def bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -101,17 +100,35 @@ def classify_colours(samples: np.ndarray, rgb: np.ndarray, iterations: int = 5,
     its = iterations if len(train) >= 10 * q else 0
     train_t = np.ascontiguousarray(train.T) if its else None
     for _ in range(its):
-        a = _sq_distances(train_t, centres).argmin(0)
+        a = _nearest_two(_sq_distances(train_t, centres))[0]
         cnt = np.bincount(a, minlength=q)
         for c in range(3):
             sums = np.bincount(a, weights=train[:, c], minlength=q)
             centres[:, c] = np.where(cnt > 5, sums / np.maximum(cnt, 1), centres[:, c])
-    d = np.sqrt(transposed(_sq_distances(np.ascontiguousarray(chroma.T), centres)))
-    o = np.argsort(d, axis=1)
-    d1 = np.take_along_axis(d, o[:, :1], 1)[:, 0]
-    d2 = np.take_along_axis(d, o[:, 1:2], 1)[:, 0]
-    codes = np.where(ok & (d1 < ambiguity * d2), o[:, 0], -1)
+    nearest, d1, d2 = _nearest_two(np.sqrt(_sq_distances(np.ascontiguousarray(chroma.T),
+                                                         centres)))
+    codes = np.where(ok & (d1 < ambiguity * d2), nearest, -1)
     return codes.astype(np.int64), centres
+
+
+def _nearest_two(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per column of ``d`` (q, N), q >= 2: the row of its least value (the first of equal
+    ones, as ``d.argmin(0)``), that value and the second least (the least of the other rows;
+    equal to it on a tie), element by element over the q rows (numpy's ``argmin`` and
+    ``argsort`` work column by column here, 5 x slower). A tie of the two nearest centres
+    leaves a sample unclassified whichever comes first (``d1 < ambiguity * d2`` fails), and
+    so does a NaN (its brightness is NaN, below ``min_level``: :func:`classify_colours`
+    neither trains on it nor classifies it)."""
+    idx = np.zeros(d.shape[1], np.int64)
+    least = d[0].copy()
+    for k in range(1, len(d)):
+        less = d[k] < least
+        idx[less] = k
+        np.minimum(least, d[k], out=least)
+    second = np.full(d.shape[1], np.inf)
+    for k in range(len(d)):
+        np.minimum(second, np.where(idx == k, np.inf, d[k]), out=second)
+    return idx, least, second
 
 
 def _sq_distances(points_t: np.ndarray, centres: np.ndarray) -> np.ndarray:
