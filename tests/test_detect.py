@@ -775,7 +775,13 @@ def test_chain_functions_by_family_are_the_whole(teapot):
     flip = np.r_[np.nonzero(~vert)[0], np.nonzero(vert)[0]]
     by_family(lambda *a: calls.append(len(a[0])) or np.zeros(len(a[0])), vert[flip],
               (x[flip], y[flip], d[flip]), line[flip])
-    assert calls == [len(x)]
+    # a point not finite (window fits read past a chain's ends with weight 0, and 0 * NaN is
+    # NaN): one call too
+    xn = x.copy()
+    xn[5] = np.nan
+    by_family(lambda *a: calls.append(len(a[0])) or np.zeros(len(a[0])), vert, (xn, y, d),
+              line)
+    assert calls == [len(x), len(x)]
 
 
 def test_decode_labels_by_family_is_the_whole_decoding(teapot, monkeypatch):
@@ -2349,3 +2355,14 @@ def test_nearest_two_is_argmin_and_the_two_least():
     assert np.array_equal(idx, d.argmin(0))
     assert np.array_equal(least, s[0]) and np.array_equal(second, s[1])
     assert np.any(least == second) and np.any(idx > 0)
+    assert np.array_equal(_nearest_two(d, index_only=True)[0], idx)
+    # not all finite (a NaN centre, an infinite sample): argmin, and the sorted distances of
+    # each sample, NaN last
+    d[3] = np.nan
+    d[:, 7] = np.inf
+    idx, least, second = _nearest_two(d)
+    o = np.argsort(d.T, axis=1)
+    assert np.array_equal(idx, o[:, 0]) and not np.any(idx == 3)
+    assert np.array_equal(least, np.take_along_axis(d.T, o[:, :1], 1)[:, 0])
+    assert np.array_equal(second, np.take_along_axis(d.T, o[:, 1:2], 1)[:, 0])
+    assert np.array_equal(_nearest_two(d, index_only=True)[0], d.argmin(0))

@@ -10,19 +10,20 @@ detection are new pages each time, and a page's first touch costs a fault and it
   start (``M_MMAP_THRESHOLD`` 32 MiB, ``M_TRIM_THRESHOLD`` 64 MiB): blocks under 32 MiB come
   from the heap and are reused, larger ones are still mapped and returned when freed. It is
   set in the worker processes nurbscan starts (:mod:`nurbscan._parallel`, and Dask's workers
-  through :mod:`nurbscan.batch.preload`), never in a library user's own process. Measured on
-  the 2-core VM: one 7.1 MP teapot view rendered in one process took 29.5 and 30.7 s wall
-  (8.4 and 11.3 s of it system time) with glibc's defaults and 23.0 and 23.3 s (6.3-6.5 s)
-  with these settings; ``nurbscan calibrate``'s peak memory (its processes' PSS summed) was
-  1464-1515 MB with the defaults and 1465-1468 MB with them (two runs each, alternating), and
-  in a second such pair of runs 1498 MB against 1415 and 1463 MB.
-* The command line's own process (:func:`nurbscan.cli.main`) sets them higher,
+  through :mod:`nurbscan.batch.preload`), never by the library in a user's own process.
+  Measured on the 2-core VM: one 7.1 MP teapot view rendered in one process took 29.5 and
+  30.7 s wall (8.4 and 11.3 s of it system time) with glibc's defaults and 23.0 and 23.3 s
+  (6.3-6.5 s) with these settings; ``nurbscan calibrate``'s peak memory (its processes' PSS
+  summed) was 1464-1515 MB with the defaults and 1465-1468 MB with them (two runs each,
+  alternating), and in a second such pair of runs 1498 MB against 1415 and 1463 MB.
+* The command line's own process (:func:`nurbscan.cli.main`, which the ``nurbscan`` command
+  and ``python -m nurbscan`` run, where glibc accepts the values) sets them higher,
   :data:`COMMAND_MMAP_BYTES` and :data:`COMMAND_TRIM_BYTES`: there detection runs on two
   threads, and its largest arrays (a 7.1 MP photograph's three float32 planes, 85 MB) lie
   above glibc's 32 MiB, so with the workers' settings they are still new pages each time.
   The benchmarks that time the command's steps in their own process set the same.
   Measured on the 2-core VM, bench view 0 (7.1 MP), 7 warm detections per fresh process,
-  five processes each, alternating (05:58 UTC, 2026-12-06):
+  five processes each, alternating (05:49 UTC, 2026-12-06):
   with glibc's defaults 791-3008 page faults and 37-93 ms of system time per detection, a
   median wall time of 0.607-0.715 s (median 0.675 s); with the workers' settings 273-5644
   faults, 46-71 ms, 0.644-0.838 s (0.701 s); with these 2-3 faults, 16-29 ms, 0.556-0.710 s

@@ -176,14 +176,18 @@ def by_family(fn, vertical: np.ndarray, points: tuple, line: np.ndarray,
 
     ``points`` are (M,) arrays of chain points grouped by chain (``line`` non-decreasing),
     ``vertical`` (M,) bool their family. A chain function's result for a point is computed
-    from its own chain's points alone, so where the vertical family's points come first
-    (:func:`family_cut`) ``fn`` is called on each family's slice (the chains renumbered from
-    0, ``at`` (Q,) int split by family) and the parts put together are the whole's; otherwise
-    ``fn`` runs once on all. Returns what ``fn`` returns: an array (M,) or (Q,), or a tuple
-    of them.
+    from its own chain's points (the window fits read beyond a chain's ends with weight 0,
+    which leaves finite values out exactly), so where the vertical family's points come
+    first (:func:`family_cut`), ``line`` does not decrease and the points are finite, ``fn``
+    is called on each family's slice (the chains renumbered from 0, ``at`` (Q,) int split by
+    family) and the parts put together are the whole's; otherwise ``fn`` runs once on all.
+    Returns what ``fn`` returns: an array (M,) or (Q,), or a tuple of them.
     """
     line = np.asarray(line)
     cut = family_cut(np.where(vertical, 0, 2))
+    if cut is not None and not (np.all(line[1:] >= line[:-1])
+                                and all(np.isfinite(a).all() for a in points)):
+        cut = None
     if cut is None:
         return fn(*points, line, **options) if at is None else fn(*points, line, at=at,
                                                                   **options)

@@ -100,7 +100,7 @@ def classify_colours(samples: np.ndarray, rgb: np.ndarray, iterations: int = 5,
     its = iterations if len(train) >= 10 * q else 0
     train_t = np.ascontiguousarray(train.T) if its else None
     for _ in range(its):
-        a = _nearest_two(_sq_distances(train_t, centres))[0]
+        a = _nearest_two(_sq_distances(train_t, centres), index_only=True)[0]
         cnt = np.bincount(a, minlength=q)
         for c in range(3):
             sums = np.bincount(a, weights=train[:, c], minlength=q)
@@ -111,20 +111,31 @@ def classify_colours(samples: np.ndarray, rgb: np.ndarray, iterations: int = 5,
     return codes.astype(np.int64), centres
 
 
-def _nearest_two(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _nearest_two(d: np.ndarray, index_only: bool = False
+                 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """Per column of ``d`` (q, N), q >= 2: the row of its least value (the first of equal
     ones, as ``d.argmin(0)``), that value and the second least (the least of the other rows;
-    equal to it on a tie), element by element over the q rows (numpy's ``argmin`` and
-    ``argsort`` work column by column here, 5 x slower). A tie of the two nearest centres
-    leaves a sample unclassified whichever comes first (``d1 < ambiguity * d2`` fails), and
-    so does a NaN (its brightness is NaN, below ``min_level``: :func:`classify_colours`
-    neither trains on it nor classifies it)."""
+    equal to it on a tie; None with ``index_only``), element by element over the q rows
+    (numpy's ``argmin`` and ``argsort`` work column by column here, 5 x slower). A tie of the
+    two nearest centres leaves a sample unclassified whichever comes first (``d1 <
+    ambiguity * d2`` fails for ``ambiguity`` <= 1). Where ``d`` is not all finite (a
+    non-finite sample or centre), as before: ``argmin``, and a stable ``argsort`` of each
+    sample's distances, which puts NaN last."""
+    if not np.isfinite(d).all():
+        if index_only:
+            return d.argmin(0), None, None
+        per_sample = np.ascontiguousarray(d.T)
+        o = np.argsort(per_sample, axis=1)
+        return (o[:, 0], np.take_along_axis(per_sample, o[:, :1], 1)[:, 0],
+                np.take_along_axis(per_sample, o[:, 1:2], 1)[:, 0])
     idx = np.zeros(d.shape[1], np.int64)
     least = d[0].copy()
     for k in range(1, len(d)):
         less = d[k] < least
         idx[less] = k
         np.minimum(least, d[k], out=least)
+    if index_only:
+        return idx, None, None
     second = np.full(d.shape[1], np.inf)
     for k in range(len(d)):
         np.minimum(second, np.where(idx == k, np.inf, d[k]), out=second)

@@ -98,9 +98,10 @@ def _columns(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return points[:, 0].copy(), points[:, 1].copy()
 
 
-def _span(c: np.ndarray) -> float:
-    """``c.max() - c.min()``: the extent of one coordinate, px."""
-    return float(c.max() - c.min())
+def _span(c: np.ndarray) -> np.float64:
+    """``c.max() - c.min()``: the extent of one coordinate, px (float64, as the spans of the
+    (M, 2) array were)."""
+    return c.max() - c.min()
 
 
 @njit(cache=True, nogil=True)

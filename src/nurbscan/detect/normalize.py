@@ -328,7 +328,8 @@ def normalize_photograph(image: np.ndarray, white: np.ndarray | None, gamma: flo
     y0, y1, x0, x1 = rows.start, rows.stop, cols.start, cols.stop
 
     def half(r0, r1):  # the window's rows r0:r1, and 0 beside them and above (below) them
-        top, bottom = (0 if r0 == y0 else r0), (h if r1 == y1 else r1)
+        top = 0 if r0 == y0 and r1 > r0 else r0  # (an empty half zeroes nothing)
+        bottom = h if r1 == y1 else r1
         for a in out:
             a[top:r0], a[r1:bottom], a[r0:r1, :x0], a[r0:r1, x1:] = 0, 0, 0, 0
         _normalise_values(img, lut, *wl, dark, np.float32(floor), wts, *out, r0, r1, y0, x0)

@@ -56,6 +56,7 @@ TAIL_RESIDUAL, TAIL_RESIDUAL_EPIPOLAR = 3.0, 1.0
 #: 84.6, 75.5 ms without, 86.3, 78.1, 68.5 ms with (the values are the same).
 SPLIT_ROWS = True
 
+
 @dataclass(frozen=True)
 class Lines:
     """Labelled edge lines (L) and their points (M), grouped by line.
@@ -268,8 +269,8 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
     Parameters
     ----------
     channels : sequence of 3 ndarray (H, W) float32
-        Normalised colour channels (indexed once each, from up to two threads at once,
-        :mod:`~nurbscan.detect._threads`: a lazy sequence such as
+        Normalised colour channels (each indexed once per band of rows, twice, from up to
+        two threads at once, :mod:`~nurbscan.detect._threads`: a lazy sequence such as
         :meth:`~nurbscan.detect.normalize.Normalised.lazy_planes` holds one per thread).
     ix, iy : (N,) int
         Edge pixels; ``cls`` (N,) their classes (0..3, :data:`~nurbscan.detect.edges.CLASSES`).
@@ -339,11 +340,11 @@ def refine_by_channels(channels, ix: np.ndarray, iy: np.ndarray, cls: np.ndarray
 
     # each channel in two bands of the window's rows, cut at its middle, each band reaching m
     # rows past the cut (the filters' and the taps' reach: the same values at its points)
-    hw = channels.shape[0] if hasattr(channels, "shape") else channels[0].shape[0]
+    hw = rows.stop - rows.start
     cut = hw // 2
     parts = [(np.arange(n), slice(0, hw))] if hw < 4 * m or not SPLIT_ROWS else [
-        (np.nonzero(jy < cut)[0], slice(0, min(cut + m, hw))),
-        (np.nonzero(jy >= cut)[0], slice(max(cut - m, 0), hw))]
+        (np.nonzero(jy < cut)[0], slice(0, cut + m)),
+        (np.nonzero(jy >= cut)[0], slice(cut - m, hw))]
 
     def channel(c, idx, band):  # one channel's profiles at the points idx of one band
         img = channels[c][band]  # (a lazy sequence computes each plane here)
