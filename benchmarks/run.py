@@ -63,6 +63,10 @@ print("@@RESULT@@" + json.dumps({"figures": res, "peak_rss_mb": peak}, default=f
 TARGETS = [
     ("detect per 7.1 MP view, warm (s) (#30)", "pipeline",
      "one 7.1 MP view, per stage / stages / detect / median s", "<=", 0.6),
+    ("detect per 7.1 MP view, warm, alternate calls with #30's code in the same run (s) "
+     "(#30)", "pipeline", "against the old code / detect / new_s", "<=", 0.6),
+    ("detect speed-up over #30's code, same run (1.79 -> 0.6 s: 2.98 x) (#30)", "pipeline",
+     "against the old code / detect / old_over_new", ">=", 2.98),
     ("image-to-Gordon per 7.1 MP view (s) (#30)", "pipeline",
      "one 7.1 MP view, per stage / stages / image-to-Gordon (detect + reconstruct) / "
      "median s", "<=", 1.5),
