@@ -27,6 +27,8 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
+import numpy as np
+
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
 _LOCAL = threading.local()
@@ -106,6 +108,16 @@ def parallel_map(fn: Callable[[Any], Any], items: Sequence[Any]) -> list[Any]:
     # as on a two-core machine)
     _EXTRA[0] += max(0.0, theirs - own)
     return [first] + rest
+
+
+def in_halves(fn: Callable[[slice], Any], n: int):
+    """``fn(slice(0, n // 2))`` and ``fn(slice(n // 2, n))`` side by side (:func:`parallel_map`),
+    their outputs joined in order (``np.concatenate``; each array of a tuple apart): for an
+    ``fn`` that works element by element, ``fn(slice(0, n))``'s arrays."""
+    parts = parallel_map(fn, (slice(0, n // 2), slice(n // 2, n)))
+    if isinstance(parts[0], tuple):
+        return tuple(np.concatenate(p) for p in zip(*parts, strict=True))
+    return np.concatenate(parts)
 
 
 def critical_cpu() -> float:

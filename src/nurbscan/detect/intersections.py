@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ._threads import parallel_map
+from ._threads import in_halves, parallel_map
 from .lines import fit_lines
 from .neighbours import closest_pairs
 from .prepare import Prepared
@@ -174,4 +174,4 @@ def grid_consistency(cam: np.ndarray, proj: np.ndarray, tol: float, k: int = 8) 
         pred = coef[:, 2, :]
         return np.hypot(*(pred - proj[rows]).T) < tol
 
-    return np.concatenate(parallel_map(part, (slice(0, n // 2), slice(n // 2, n))))
+    return in_halves(part, n)

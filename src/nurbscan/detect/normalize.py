@@ -310,14 +310,14 @@ def normalize_photograph(image: np.ndarray, white: np.ndarray | None, gamma: flo
     wts = _weights(weights)
     h, w = image.shape[:2]
 
-    def lit_white(white):  # the lit window and the white image's planes there
+    def lit_white():  # the lit window and the white image's planes there
         rows, cols = lit_window(white, gamma, floor)
         return rows, cols, as_float_planes(white[rows, cols], "white image", gamma=gamma)
 
     # (the dark level and the white image side by side, then the white planes' blurs side by
     # side: _threads)
-    dark, (rows, cols, wl) = parallel_map(lambda job: job[0](job[1]), (
-        (lambda im: dark_level(im, gamma, window), image), (lit_white, white)))
+    dark, (rows, cols, wl) = parallel_map(lambda job: job(), (
+        lambda: dark_level(image, gamma, window), lit_white))
     wl = _blurred(list(wl), True)
     if wl[0].shape == (h, w):  # (the whole frame lit: the channels in the white's planes)
         out = [*wl, np.empty((h, w), np.float32), np.empty((h, w), np.bool_)]

@@ -37,7 +37,7 @@ import cv2
 import numpy as np
 
 from .._jit import njit
-from ._threads import parallel_map
+from ._threads import in_halves, parallel_map
 
 
 def family_normals(gx: np.ndarray, gy: np.ndarray, strong: np.ndarray, tile: int = 48,
@@ -84,9 +84,8 @@ def family_normals(gx: np.ndarray, gy: np.ndarray, strong: np.ndarray, tile: int
         t = (iy[part] // tile).astype(np.int64) * tx + ix[part] // tile
         return t * bins + b, np.hypot(ax[part], ay[part])
 
-    half = len(iy) // 2
-    (k0, w0), (k1, w1) = parallel_map(keys, (slice(0, half), slice(half, None)))
-    hist = np.bincount(np.concatenate([k0, k1]), weights=np.concatenate([w0, w1]),
+    key, weight = in_halves(keys, len(iy))
+    hist = np.bincount(key, weights=weight,
                        minlength=ty * tx * bins).reshape(ty, tx, bins)
     from scipy.ndimage import uniform_filter1d
 

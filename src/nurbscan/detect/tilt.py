@@ -23,7 +23,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from ._threads import parallel_map
+from ._threads import in_halves
 
 #: The detector tells the families apart by their normals, the one nearer the image's y axis
 #: taken as the horizontal bands' (:func:`~nurbscan.detect.oblique.family_normals`, per tile).
@@ -127,13 +127,11 @@ def grid_tilt(image: np.ndarray) -> Tilt:
         phi = np.degrees(np.arctan2(y[ok], x[ok])) % 180.0
         return np.minimum(phi.astype(np.int64), 179), m2[ok]
 
-    half = len(gx) // 2
-    (b0, w0), (b1, w1) = parallel_map(directions, (slice(0, half), slice(half, None)))
-    weight = np.concatenate([w0, w1])
+    bins, weight = in_halves(directions, len(gx))
     total = weight.sum()
     if not len(weight) or total <= 0:
         return Tilt(0.0, 45.0, 0.0)
-    hist = np.bincount(np.concatenate([b0, b1]), weights=weight, minlength=180) / total
+    hist = np.bincount(bins, weights=weight, minlength=180) / total
     k = np.exp(-0.5 * (np.arange(-6, 7) / 2.0) ** 2)
     smooth = np.convolve(np.r_[hist[-6:], hist, hist[:6]], k / k.sum(), mode="valid")
     centre = np.arange(180) + 0.5
